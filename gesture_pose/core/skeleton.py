@@ -1,0 +1,253 @@
+"""Skeletons, poses and vectorized forward kinematics.
+
+Rest data is in world space with the armature object's transform baked in; only uniform
+object scale is supported. For bone ``i`` with parent ``p``, rest frames ``R`` (columns are
+the bone's x, y, z axes, y from head to tail), rest heads ``r``, local rotations ``Q`` and
+local translations ``t`` (world units, in the bone's rest axes), the posed world frame and
+head are (Blender's pose-matrix recursion)::
+
+    F_i = F_p R_p^T R_i Q_i                       (F_i = R_i Q_i for roots)
+    h_i = h_p + F_p R_p^T (r_i - r_p + R_i t_i)   (h_i = r_i + R_i t_i for roots)
+    tail_i = h_i + length_i * F_i[:, 1]
+
+Bones whose ``inherit_rotation`` is False take ``F_i = R_i Q_i`` but still follow the
+parent's head motion.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .exceptions import InputError
+from .rotations import exp_map, normalize, rotation_between, swing_twist
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Local transforms of every bone relative to its rest frame.
+
+    Attributes:
+        rotations: Local rotations ``Q``, shape ``(n, 3, 3)``.
+        translations: Local translations ``t`` in world units, in rest-bone axes, ``(n, 3)``.
+    """
+
+    rotations: np.ndarray
+    translations: np.ndarray
+
+    @classmethod
+    def identity(cls, n: int) -> Pose:
+        """The rest pose of ``n`` bones."""
+        return cls(np.tile(np.eye(3), (n, 1, 1)), np.zeros((n, 3)))
+
+    def with_rotations(self, indices: np.ndarray, rotations: np.ndarray) -> Pose:
+        """Return a copy with the rotations of ``indices`` replaced.
+
+        Args:
+            indices: Bone indices, shape ``(k,)``.
+            rotations: New local rotations, shape ``(k, 3, 3)``.
+        """
+        rot = self.rotations.copy()
+        rot[np.asarray(indices, dtype=int)] = rotations
+        return Pose(rot, self.translations.copy())
+
+
+@dataclass(frozen=True)
+class PoseState:
+    """World-space result of forward kinematics.
+
+    Attributes:
+        heads: Bone heads, shape ``(n, 3)``.
+        tails: Bone tails, shape ``(n, 3)``.
+        frames: Posed world frames ``F``, shape ``(n, 3, 3)``.
+    """
+
+    heads: np.ndarray
+    tails: np.ndarray
+    frames: np.ndarray
+
+
+@dataclass(frozen=True)
+class Skeleton:
+    """A bone hierarchy with its rest pose in world space.
+
+    Attributes:
+        names: Bone names, parents before children.
+        parents: Parent index per bone, -1 for roots, shape ``(n,)``.
+        rest_heads: Rest heads, shape ``(n, 3)``, world units.
+        rest_tails: Rest tails, shape ``(n, 3)``, world units.
+        rest_frames: Rest frames ``R`` (orthonormal, columns x, y, z), shape ``(n, 3, 3)``.
+        inherit_rotation: Whether each bone inherits its parent's rotation, shape ``(n,)``.
+        connected: Whether each bone's head sits on its parent's tail, shape ``(n,)``.
+        deform: Whether each bone deforms a mesh, shape ``(n,)``.
+    """
+
+    names: tuple[str, ...]
+    parents: np.ndarray
+    rest_heads: np.ndarray
+    rest_tails: np.ndarray
+    rest_frames: np.ndarray
+    inherit_rotation: np.ndarray
+    connected: np.ndarray
+    deform: np.ndarray
+    _levels: tuple[np.ndarray, ...] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        """Validate shapes and parent order, then cache the per-depth bone groups."""
+        n = len(self.names)
+        for attr, shape in (
+            ("parents", (n,)),
+            ("rest_heads", (n, 3)),
+            ("rest_tails", (n, 3)),
+            ("rest_frames", (n, 3, 3)),
+            ("inherit_rotation", (n,)),
+            ("connected", (n,)),
+            ("deform", (n,)),
+        ):
+            value = np.asarray(getattr(self, attr))
+            if value.shape != shape:
+                raise InputError(f"Skeleton.{attr} must have shape {shape}, got {value.shape}.")
+        if n == 0:
+            raise InputError("The armature has no bones.")
+        for attr in ("rest_heads", "rest_tails", "rest_frames"):
+            if not np.all(np.isfinite(getattr(self, attr))):
+                raise InputError(f"Skeleton.{attr} contains NaN or infinite values.")
+        parents = np.asarray(self.parents, dtype=int)
+        if np.any(parents >= np.arange(n)):
+            raise InputError("Skeleton bones must be ordered parents before children.")
+        depth = np.zeros(n, dtype=int)
+        for i in range(n):
+            depth[i] = 0 if parents[i] < 0 else depth[parents[i]] + 1
+        levels = tuple(np.flatnonzero(depth == d) for d in range(depth.max() + 1))
+        object.__setattr__(self, "parents", parents)
+        object.__setattr__(self, "_levels", levels)
+
+    @property
+    def n_bones(self) -> int:
+        """Number of bones."""
+        return len(self.names)
+
+    @property
+    def lengths(self) -> np.ndarray:
+        """Bone lengths, shape ``(n,)``, world units."""
+        return np.linalg.norm(self.rest_tails - self.rest_heads, axis=1)
+
+    def index(self, name: str) -> int:
+        """Index of the bone called ``name``.
+
+        Raises:
+            InputError: No bone has that name.
+        """
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise InputError(f"The armature has no bone named '{name}'.") from None
+
+    def children(self, i: int) -> np.ndarray:
+        """Indices of the direct children of bone ``i``, shape ``(k,)``."""
+        return np.flatnonzero(self.parents == i)
+
+    def ancestors(self, i: int) -> list[int]:
+        """Bone ``i`` and its ancestors, from ``i`` up to its root."""
+        out = [i]
+        while self.parents[out[-1]] >= 0:
+            out.append(int(self.parents[out[-1]]))
+        return out
+
+    def descendants(self, i: int) -> np.ndarray:
+        """Bone ``i`` and every bone below it, in skeleton order, shape ``(k,)``."""
+        mask = np.zeros(self.n_bones, dtype=bool)
+        mask[i] = True
+        for j in range(i + 1, self.n_bones):
+            p = self.parents[j]
+            if p >= 0 and mask[p]:
+                mask[j] = True
+        return np.flatnonzero(mask)
+
+    def forward(self, pose: Pose) -> PoseState:
+        """Forward kinematics, vectorized over the bones of each tree depth.
+
+        Args:
+            pose: Local rotations and translations of every bone.
+
+        Returns:
+            World-space heads, tails and frames.
+        """
+        n = self.n_bones
+        rest = self.rest_frames
+        local_rot = rest @ np.asarray(pose.rotations, dtype=float)
+        offset_t = np.einsum("nij,nj->ni", rest, np.asarray(pose.translations, dtype=float))
+        frames = np.empty((n, 3, 3))
+        heads = np.empty((n, 3))
+        for level in self._levels:
+            p = self.parents[level]
+            root = p < 0
+            r_idx, c_idx, c_par = level[root], level[~root], p[~root]
+            frames[r_idx] = local_rot[r_idx]
+            heads[r_idx] = self.rest_heads[r_idx] + offset_t[r_idx]
+            if c_idx.size:
+                carry = frames[c_par] @ np.swapaxes(rest[c_par], 1, 2)
+                inherit = self.inherit_rotation[c_idx][:, None, None]
+                frames[c_idx] = np.where(inherit, carry @ local_rot[c_idx], local_rot[c_idx])
+                rel = self.rest_heads[c_idx] - self.rest_heads[c_par] + offset_t[c_idx]
+                heads[c_idx] = heads[c_par] + np.einsum("nij,nj->ni", carry, rel)
+        tails = heads + frames[:, :, 1] * self.lengths[:, None]
+        return PoseState(heads, tails, frames)
+
+    def parent_carry(self, i: int, state: PoseState) -> np.ndarray:
+        """The rotation ``C`` with ``F_i = C Q_i`` for bone ``i`` in ``state``.
+
+        Args:
+            i: Bone index.
+            state: Forward kinematics of the current pose (only the parent is used).
+
+        Returns:
+            Rotation matrix, shape ``(3, 3)``.
+        """
+        p = self.parents[i]
+        if p < 0 or not self.inherit_rotation[i]:
+            return self.rest_frames[i]
+        return state.frames[p] @ self.rest_frames[p].T @ self.rest_frames[i]
+
+    def local_rotation_for_frame(self, i: int, frame: np.ndarray, state: PoseState) -> np.ndarray:
+        """Local rotation ``Q_i`` that gives bone ``i`` the world frame ``frame``.
+
+        Args:
+            i: Bone index.
+            frame: Desired world frame of bone ``i``, shape ``(3, 3)``.
+            state: Forward kinematics of a pose holding the desired parent frame.
+
+        Returns:
+            Local rotation, shape ``(3, 3)``.
+        """
+        return self.parent_carry(i, state).T @ frame
+
+    def aim_local(
+        self, i: int, direction: np.ndarray, state: PoseState, current: np.ndarray
+    ) -> np.ndarray:
+        """Local rotation pointing bone ``i`` along ``direction`` with its twist kept.
+
+        The local rotation is written as ``Q = S T`` (swing-twist about the bone's y axis).
+        The new rotation is computed directly, not compounded: ``S`` is the smallest
+        rotation taking y to the target direction expressed in the parent-carried frame,
+        and ``T`` is the twist of ``current``, so the twist about the bone survives any
+        number of strokes and views.
+
+        Args:
+            i: Bone index.
+            direction: Desired world direction of the bone (any length > 0), shape ``(3,)``.
+            state: Forward kinematics of a pose holding the desired parent frame.
+            current: The bone's current local rotation, shape ``(3, 3)``.
+
+        Returns:
+            Local rotation ``Q_i``, shape ``(3, 3)``.
+        """
+        y = np.array([0.0, 1.0, 0.0])
+        local_dir = self.parent_carry(i, state).T @ normalize(np.asarray(direction, float))
+        _, twist = swing_twist(current, y)
+        return rotation_between(y, local_dir) @ exp_map(y * twist)
+
+    def twist_angles(self, pose: Pose) -> np.ndarray:
+        """Twist of every local rotation about the bone's own y axis, radians, ``(n,)``."""
+        return swing_twist(pose.rotations, np.array([0.0, 1.0, 0.0]))[1]
