@@ -16,7 +16,6 @@ import bpy
 MODULES: tuple[str, ...] = (
     "properties",
     "panel",
-    "operators.pose_stroke",
 )
 
 
