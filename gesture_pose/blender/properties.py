@@ -1,0 +1,47 @@
+"""Scene settings of gesture_pose: which armature to pose and which sketch to read.
+
+Stored on every scene as ``scene.gesture_pose`` (a :class:`GesturePoseSettings`).
+"""
+
+from __future__ import annotations
+
+import bpy
+
+
+def _is_armature(_self, obj: bpy.types.Object) -> bool:
+    return obj.type == "ARMATURE"
+
+
+def _is_sketch(_self, obj: bpy.types.Object) -> bool:
+    return obj.type in {"GREASEPENCIL", "CURVE"}
+
+
+class GesturePoseSettings(bpy.types.PropertyGroup):
+    """The armature and sketch the Gesture Pose operators use by default."""
+
+    armature: bpy.props.PointerProperty(
+        name="Armature",
+        description="Character armature to pose (the active armature when empty)",
+        type=bpy.types.Object,
+        poll=_is_armature,
+    )
+    sketch: bpy.props.PointerProperty(
+        name="Sketch",
+        description="Grease Pencil or curve object holding the drawing (the active or only "
+        "Grease Pencil object when empty)",
+        type=bpy.types.Object,
+        poll=_is_sketch,
+    )
+
+
+CLASSES = (GesturePoseSettings,)
+
+
+def register_extra() -> None:
+    """Attach the settings to every scene as ``scene.gesture_pose``."""
+    bpy.types.Scene.gesture_pose = bpy.props.PointerProperty(type=GesturePoseSettings)
+
+
+def unregister_extra() -> None:
+    """Remove ``scene.gesture_pose``."""
+    del bpy.types.Scene.gesture_pose
