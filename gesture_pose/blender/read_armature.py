@@ -1,0 +1,230 @@
+"""Read an armature object into a core :class:`Skeleton` and :class:`Pose`, in bulk.
+
+Blender's pose recursion in armature space is
+``P_i = P_p B_p^-1 B_i M_i`` with ``B`` the bones' rest matrices (``bone.matrix_local``) and
+``M`` the local transforms (``pose_bone.matrix_basis``). With the object's world matrix
+``W = [s R_o | T]`` (uniform scale ``s`` only) the world rest frames are ``R_i = R_o B_i``,
+the world rest heads ``r_i = W b_i`` and the local translations ``t_i = s m_i``; the core's
+``Skeleton.forward`` then reproduces ``W P_i`` exactly (see ``core/skeleton.py``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import bpy
+import numpy as np
+
+from ..core.exceptions import InputError
+from ..core.rotations import orthonormalize
+from ..core.skeleton import Pose, Skeleton
+
+#: Pose-bone custom property that pins a bone (the solvers leave it alone).
+PINNED_PROPERTY = "gesture_pose_pinned"
+#: Bone collection whose bones are pinned.
+PINNED_COLLECTION = "Pinned"
+#: Bone collection that restricts the gesture mode to its bones.
+GESTURE_COLLECTION = "Gesture"
+
+_AXES = ("x", "y", "z")
+
+
+@dataclass(frozen=True)
+class ArmatureData:
+    """Everything the solvers need from one armature, read once.
+
+    Arrays follow the skeleton's bone order (parents first), not Blender's.
+
+    Attributes:
+        object_name: Name of the armature object.
+        skeleton: Rest skeleton in world space.
+        pose: Current local rotations and translations (world units).
+        rotation_modes: Each pose bone's ``rotation_mode`` (``'QUATERNION'``, ``'XYZ'``, ...,
+            ``'AXIS_ANGLE'``).
+        pinned: Bones the solvers must not rotate, shape ``(n,)`` bool.
+        gesture_override: Bones in the "Gesture" bone collection, shape ``(n,)`` bool, or
+            None when the armature has no such collection.
+        lock_rotation: Per-axis rotation locks (``pose_bone.lock_rotation``), ``(n, 3)`` bool.
+        ik_limits: IK limits ``[min, max]`` per local axis x, y, z in radians, ``(n, 3, 2)``;
+            NaN where the axis is not limited.
+        object_scale: The object's uniform world scale ``s``.
+        matrix_world: The object's world matrix, shape ``(4, 4)``.
+    """
+
+    object_name: str
+    skeleton: Skeleton
+    pose: Pose
+    rotation_modes: tuple[str, ...]
+    pinned: np.ndarray
+    gesture_override: np.ndarray | None
+    lock_rotation: np.ndarray
+    ik_limits: np.ndarray
+    object_scale: float
+    matrix_world: np.ndarray
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Bone names in skeleton order."""
+        return self.skeleton.names
+
+
+def _bulk(collection, attr: str, width: int, dtype=np.float64) -> np.ndarray:
+    """``collection.foreach_get(attr)`` into an array of shape ``(len, width)``."""
+    out = np.empty(len(collection) * width, dtype=dtype)
+    collection.foreach_get(attr, out)
+    return out.reshape(len(collection), width)
+
+
+def _matrices(collection, attr: str) -> np.ndarray:
+    """4x4 matrix property of every item, shape ``(len, 4, 4)`` (row-major, as numpy)."""
+    # foreach_get flattens mathutils matrices column by column: transpose back.
+    return np.swapaxes(_bulk(collection, attr, 16).reshape(-1, 4, 4), 1, 2)
+
+
+def object_similarity(matrix_world: np.ndarray, name: str) -> tuple[np.ndarray, float]:
+    """Split a world matrix into a rotation and a uniform scale.
+
+    Args:
+        matrix_world: Object world matrix, shape ``(4, 4)``.
+        name: Object name, for messages.
+
+    Returns:
+        ``(R_o, s)``: rotation ``(3, 3)`` and uniform scale.
+
+    Raises:
+        InputError: NaN values, non-uniform scale, shear or mirroring.
+    """
+    if not np.all(np.isfinite(matrix_world)):
+        raise InputError(f"'{name}' has a NaN or infinite transform: reset its transform.")
+    a = matrix_world[:3, :3]
+    norms = np.linalg.norm(a, axis=0)
+    s = float(norms.mean())
+    if s < 1e-12:
+        raise InputError(f"'{name}' has zero scale: set its scale to a positive value.")
+    gram = a.T @ a / s**2
+    if np.abs(gram - np.eye(3)).max() > 1e-4:
+        raise InputError(
+            f"'{name}' has a non-uniform scale {np.round(norms, 4).tolist()} (or shear): "
+            "apply the scale (Ctrl+A > Scale) or give it the same scale on all axes."
+        )
+    if np.linalg.det(a) < 0:
+        raise InputError(f"'{name}' is mirrored (negative scale): apply or undo the mirroring.")
+    return a / s, s
+
+
+def _parents_first(parent_names: list[str | None], names: list[str]) -> np.ndarray:
+    """Permutation putting parents before children (stable by tree depth), shape ``(n,)``."""
+    index = {name: i for i, name in enumerate(names)}
+    parents = [index[p] if p is not None else -1 for p in parent_names]
+    depth = [-1] * len(names)
+    for i in range(len(names)):
+        path, j = [], i
+        while j >= 0 and depth[j] < 0:
+            path.append(j)
+            j = parents[j]
+        d = depth[j] if j >= 0 else -1
+        for k in reversed(path):
+            d += 1
+            depth[k] = d
+    return np.argsort(np.asarray(depth), kind="stable")
+
+
+def _collection_mask(arm, name: str, names: tuple[str, ...]) -> np.ndarray | None:
+    """Bones in the bone collection ``name`` (any nesting level), or None if absent."""
+    colls = [c for c in arm.collections_all if c.name == name]
+    if not colls:
+        return None
+    members = {b.name for c in colls for b in c.bones}
+    return np.array([n in members for n in names], dtype=bool)
+
+
+def _ik_limits(pose_bones) -> np.ndarray:
+    """IK limits of every pose bone, ``(n, 3, 2)`` radians, NaN where unlimited."""
+    out = np.full((len(pose_bones), 3, 2), np.nan)
+    for k, ax in enumerate(_AXES):
+        used = _bulk(pose_bones, f"use_ik_limit_{ax}", 1, bool)[:, 0]
+        lo = _bulk(pose_bones, f"ik_min_{ax}", 1)[:, 0]
+        hi = _bulk(pose_bones, f"ik_max_{ax}", 1)[:, 0]
+        out[used, k, 0], out[used, k, 1] = lo[used], hi[used]
+    return out
+
+
+def read_armature(arm_obj: bpy.types.Object) -> ArmatureData:
+    """Read the rest skeleton, current pose and per-bone settings of an armature object.
+
+    Args:
+        arm_obj: An object of type ``'ARMATURE'``.
+
+    Returns:
+        The armature's data, bones ordered parents first.
+
+    Raises:
+        InputError: Not an armature, no bones, non-uniform scale, zero-length bones or NaN
+            matrices.
+    """
+    if arm_obj is None or arm_obj.type != "ARMATURE":
+        kind = "nothing" if arm_obj is None else f"a {arm_obj.type.lower()} object"
+        raise InputError(f"Expected an armature object, got {kind}: select the armature.")
+    arm = arm_obj.data
+    bones, pose_bones = arm.bones, arm_obj.pose.bones
+    if len(bones) == 0:
+        raise InputError(f"Armature '{arm_obj.name}' has no bones: add bones first.")
+    world = np.array(arm_obj.matrix_world, dtype=float)
+    rot_o, scale = object_similarity(world, arm_obj.name)
+
+    blender_names = [b.name for b in bones]
+    order = _parents_first([b.parent.name if b.parent else None for b in bones], blender_names)
+    names = tuple(blender_names[i] for i in order)
+    position = {name: i for i, name in enumerate(names)}
+    parents = np.array([position[bones[n].parent.name] if bones[n].parent else -1
+                        for n in names], dtype=int)
+
+    local = _matrices(bones, "matrix_local")[order]
+    heads = _bulk(bones, "head_local", 3)[order]
+    tails = _bulk(bones, "tail_local", 3)[order]
+    if not (np.all(np.isfinite(local)) and np.all(np.isfinite(heads))
+            and np.all(np.isfinite(tails))):
+        raise InputError(f"Armature '{arm_obj.name}' has NaN bone data: fix or recreate the "
+                         "affected bones in Edit Mode.")
+    heads_w = heads @ world[:3, :3].T + world[:3, 3]
+    tails_w = tails @ world[:3, :3].T + world[:3, 3]
+    short = np.linalg.norm(tails_w - heads_w, axis=1) < 1e-9
+    if np.any(short):
+        raise InputError(f"Zero-length bones {[names[i] for i in np.flatnonzero(short)]} in "
+                         f"'{arm_obj.name}': give them a length in Edit Mode.")
+    rest_frames = rot_o @ orthonormalize(local[:, :3, :3])
+
+    flag = {name: i for i, name in enumerate(blender_names)}
+    blender_order = np.array([flag[n] for n in names])
+    inherit = _bulk(bones, "use_inherit_rotation", 1, bool)[blender_order, 0]
+    connected = _bulk(bones, "use_connect", 1, bool)[blender_order, 0]
+    deform = _bulk(bones, "use_deform", 1, bool)[blender_order, 0]
+    skeleton = Skeleton(names, parents, heads_w, tails_w, rest_frames, inherit, connected,
+                        deform)
+
+    pb_index = {pb.name: i for i, pb in enumerate(pose_bones)}
+    pb_order = np.array([pb_index[n] for n in names])
+    basis = _matrices(pose_bones, "matrix_basis")[pb_order]
+    if not np.all(np.isfinite(basis)):
+        raise InputError(f"Armature '{arm_obj.name}' has NaN pose values: clear the pose "
+                         "(Alt+R, Alt+G) of the affected bones.")
+    pose = Pose(orthonormalize(basis[:, :3, :3]), basis[:, :3, 3] * scale)
+
+    ordered_pbs = [pose_bones[n] for n in names]
+    modes = tuple(pb.rotation_mode for pb in ordered_pbs)
+    pinned = np.array([bool(pb.get(PINNED_PROPERTY, False)) for pb in ordered_pbs], bool)
+    pinned_coll = _collection_mask(arm, PINNED_COLLECTION, names)
+    if pinned_coll is not None:
+        pinned |= pinned_coll
+    return ArmatureData(
+        object_name=arm_obj.name,
+        skeleton=skeleton,
+        pose=pose,
+        rotation_modes=modes,
+        pinned=pinned,
+        gesture_override=_collection_mask(arm, GESTURE_COLLECTION, names),
+        lock_rotation=_bulk(pose_bones, "lock_rotation", 3, bool)[pb_order],
+        ik_limits=_ik_limits(pose_bones)[pb_order],
+        object_scale=scale,
+        matrix_world=world,
+    )

@@ -1,0 +1,201 @@
+"""Readers: armature, view, sketches and skinned meshes against Blender's own answers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gesture_pose.core.exceptions import InputError
+
+from .conftest import add_camera, link
+
+bpy = pytest.importorskip("bpy")
+from mathutils import Quaternion, Vector  # noqa: E402
+
+from gesture_pose.blender.read_armature import _parents_first, read_armature  # noqa: E402
+from gesture_pose.blender.read_view import (  # noqa: E402
+    camera_from_context,
+    camera_from_object,
+    camera_from_region,
+)
+
+pytestmark = pytest.mark.blender
+
+MODES = ("QUATERNION", "XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX", "AXIS_ANGLE")
+
+
+def random_pose(obj, rng: np.random.Generator, modes=MODES) -> None:
+    """Give every pose bone a random rotation (in a cycled rotation mode) and location."""
+    for k, pb in enumerate(obj.pose.bones):
+        pb.rotation_mode = modes[k % len(modes)]
+        q = Quaternion(rng.normal(size=4)).normalized()
+        if pb.rotation_mode == "QUATERNION":
+            pb.rotation_quaternion = q
+        elif pb.rotation_mode == "AXIS_ANGLE":
+            axis, angle = q.to_axis_angle()
+            pb.rotation_axis_angle = (angle, *axis)
+        else:
+            pb.rotation_euler = q.to_euler(pb.rotation_mode)
+        pb.location = rng.normal(scale=0.2, size=3)
+    bpy.context.view_layer.update()
+
+
+def blender_world(obj):
+    """Blender's posed world heads, tails and normalized frames, in skeleton bone order."""
+    mw = obj.matrix_world
+    heads = {pb.name: np.array(mw @ pb.head) for pb in obj.pose.bones}
+    tails = {pb.name: np.array(mw @ pb.tail) for pb in obj.pose.bones}
+    frames = {pb.name: np.array((mw @ pb.matrix).to_3x3().normalized())
+              for pb in obj.pose.bones}
+    return heads, tails, frames
+
+
+# ----------------------------------------------------------------------------- armature
+
+
+def test_parents_first_orders_any_forest():
+    names = ["c", "a", "d", "b", "e"]
+    parent_names = ["b", None, "c", "a", None]
+    order = _parents_first(parent_names, names)
+    pos = {names[i]: k for k, i in enumerate(order)}
+    for name, parent in zip(names, parent_names, strict=True):
+        if parent is not None:
+            assert pos[parent] < pos[name]
+    assert sorted(order.tolist()) == list(range(5))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_forward_matches_blender_in_every_rotation_mode(two_root_rig, seed):
+    rng = np.random.default_rng(seed)
+    # Six bones: seed 0 uses modes 0-5, seed 1 modes 4-7, 0, 1, so all eight are covered.
+    modes = MODES[4 * seed:] + MODES[:4 * seed]
+    random_pose(two_root_rig, rng, modes)
+    data = read_armature(two_root_rig)
+    state = data.skeleton.forward(data.pose)
+    heads, tails, frames = blender_world(two_root_rig)
+    for i, name in enumerate(data.names):
+        np.testing.assert_allclose(state.heads[i], heads[name], atol=1e-5)
+        np.testing.assert_allclose(state.tails[i], tails[name], atol=1e-5)
+        np.testing.assert_allclose(state.frames[i], frames[name], atol=1e-5)
+    for name, mode in zip(data.names, data.rotation_modes, strict=True):
+        assert two_root_rig.pose.bones[name].rotation_mode == mode
+    assert len(set(data.rotation_modes)) == 6
+    assert data.object_scale == pytest.approx(1.7, rel=1e-6)
+
+
+def test_rest_data_and_flags(two_root_rig):
+    data = read_armature(two_root_rig)
+    sk = data.skeleton
+    assert sk.names[:2] == ("hip", "prop")  # roots first, in Blender order
+    assert np.all(sk.parents < np.arange(sk.n_bones))
+    assert sk.parents[sk.index("fore")] == sk.index("arm")
+    assert np.flatnonzero(sk.parents < 0).tolist() == [sk.index("hip"), sk.index("prop")]
+    assert sk.connected[sk.index("spine")] and not sk.connected[sk.index("arm")]
+    mw = two_root_rig.matrix_world
+    for i, name in enumerate(sk.names):
+        bone = two_root_rig.data.bones[name]
+        np.testing.assert_allclose(sk.rest_heads[i], mw @ bone.head_local, atol=1e-5)
+        np.testing.assert_allclose(sk.rest_tails[i], mw @ bone.tail_local, atol=1e-5)
+        rest = (mw @ bone.matrix_local).to_3x3().normalized()
+        np.testing.assert_allclose(sk.rest_frames[i], np.array(rest), atol=1e-5)
+    np.testing.assert_allclose(data.pose.rotations, np.tile(np.eye(3), (6, 1, 1)), atol=1e-6)
+    assert not data.pinned.any() and data.gesture_override is None
+
+
+def test_masks_locks_and_limits(two_root_rig):
+    arm = two_root_rig.data
+    arm.collections.new("Pinned").assign(arm.bones["prop"])
+    gesture = arm.collections.new("Gesture")
+    gesture.assign(arm.bones["arm"])
+    gesture.assign(arm.bones["fore"])
+    two_root_rig.pose.bones["hip"]["gesture_pose_pinned"] = 1
+    pb = two_root_rig.pose.bones["spine"]
+    pb.lock_rotation = (True, False, True)
+    pb.use_ik_limit_x, pb.ik_min_x, pb.ik_max_x = True, -0.5, 0.25
+    data = read_armature(two_root_rig)
+    names = data.names
+    assert [names[i] for i in np.flatnonzero(data.pinned)] == ["hip", "prop"]
+    assert [names[i] for i in np.flatnonzero(data.gesture_override)] == ["arm", "fore"]
+    i = names.index("spine")
+    assert data.lock_rotation[i].tolist() == [True, False, True]
+    assert data.lock_rotation.sum() == 2
+    np.testing.assert_allclose(data.ik_limits[i, 0], [-0.5, 0.25], atol=1e-7)
+    assert np.isnan(np.delete(data.ik_limits.reshape(-1, 2), 3 * i, axis=0)).all()
+
+
+def test_rejects_bad_objects(two_root_rig):
+    two_root_rig.scale = (1.0, 2.0, 1.0)
+    bpy.context.view_layer.update()
+    with pytest.raises(InputError, match="non-uniform scale"):
+        read_armature(two_root_rig)
+    two_root_rig.scale = (-1.0, -1.0, -1.0)
+    bpy.context.view_layer.update()
+    with pytest.raises(InputError, match="mirrored"):
+        read_armature(two_root_rig)
+    empty = link(bpy.data.objects.new("Empty", None))
+    with pytest.raises(InputError, match="armature"):
+        read_armature(empty)
+
+
+# ----------------------------------------------------------------------------- view
+
+
+def world_to_pixels(scene, cam_obj, points):
+    from bpy_extras.object_utils import world_to_camera_view
+
+    r = scene.render
+    size = np.array([r.resolution_x, r.resolution_y]) * r.resolution_percentage / 100
+    return np.array([world_to_camera_view(scene, cam_obj, Vector(p))[:2] for p in points]) * size
+
+
+@pytest.mark.parametrize("ortho", [False, True])
+def test_camera_from_object_matches_world_to_camera_view(bpy_blank, ortho):
+    scene = bpy.context.scene
+    scene.render.resolution_x, scene.render.resolution_y = 640, 360
+    scene.render.resolution_percentage = 50
+    cam = add_camera((3.0, -5.0, 2.5), (0.2, 0.1, 0.9), ortho_scale=4.0 if ortho else None,
+                     lens=35.0)
+    camera = camera_from_object(cam)
+    assert (camera.width, camera.height, camera.is_perspective) == (320, 180, not ortho)
+    pts = np.random.default_rng(3).uniform(-1.0, 1.5, size=(20, 3))
+    np.testing.assert_allclose(camera.project(pts), world_to_pixels(scene, cam, pts), atol=1e-3)
+
+
+class _Region:
+    def __init__(self, width, height):
+        self.width, self.height = width, height
+
+
+class _RegionView3D:
+    def __init__(self, view, window, perspective):
+        self.view_matrix, self.window_matrix = view, window
+        self.perspective_matrix = window @ view
+        self.is_perspective = perspective
+
+
+def test_region_stand_in_gives_the_same_camera(bpy_blank):
+    from bpy_extras.view3d_utils import location_3d_to_region_2d
+
+    scene = bpy.context.scene
+    scene.render.resolution_x, scene.render.resolution_y = 500, 700
+    cam = add_camera((-2.0, -6.0, 1.0), (0.0, 0.0, 1.0))
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    window = cam.calc_matrix_camera(depsgraph, x=500, y=700)
+    rv3d = _RegionView3D(cam.matrix_world.normalized().inverted(), window, True)
+    region = _Region(500, 700)
+    from_region = camera_from_region(region, rv3d)
+    from_object = camera_from_object(cam)
+    np.testing.assert_allclose(from_region.view_matrix, from_object.view_matrix, atol=1e-6)
+    np.testing.assert_allclose(from_region.projection_matrix, from_object.projection_matrix,
+                               atol=1e-6)
+    pts = np.random.default_rng(4).uniform(-1.0, 2.0, size=(10, 3))
+    expect = np.array([location_3d_to_region_2d(region, rv3d, Vector(p)) for p in pts])
+    np.testing.assert_allclose(from_region.project(pts), expect, atol=1e-3)
+
+
+def test_camera_from_context_falls_back_to_scene_camera(bpy_blank):
+    with pytest.raises(InputError, match="No view"):
+        camera_from_context(bpy.context)
+    cam = add_camera((0.0, -6.0, 1.0), (0.0, 0.0, 1.0))
+    camera = camera_from_context(bpy.context)
+    np.testing.assert_allclose(camera.location, np.array(cam.location), atol=1e-5)
