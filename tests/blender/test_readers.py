@@ -7,12 +7,19 @@ import pytest
 
 from gesture_pose.core.exceptions import InputError
 
-from .conftest import add_camera, link
+from .conftest import add_camera, add_grease_pencil, link
 
 bpy = pytest.importorskip("bpy")
 from mathutils import Quaternion, Vector  # noqa: E402
 
 from gesture_pose.blender.read_armature import _parents_first, read_armature  # noqa: E402
+from gesture_pose.blender.read_strokes import (  # noqa: E402
+    chain_edges,
+    read_sketch,
+    remove_strokes,
+    strokes_to_2d,
+    write_strokes,
+)
 from gesture_pose.blender.read_view import (  # noqa: E402
     camera_from_context,
     camera_from_object,
@@ -199,3 +206,153 @@ def test_camera_from_context_falls_back_to_scene_camera(bpy_blank):
     cam = add_camera((0.0, -6.0, 1.0), (0.0, 0.0, 1.0))
     camera = camera_from_context(bpy.context)
     np.testing.assert_allclose(camera.location, np.array(cam.location), atol=1e-5)
+
+
+# ----------------------------------------------------------------------------- sketches
+
+
+def moved_gp(name="Sketch"):
+    gp = bpy.data.grease_pencils.new(name)
+    obj = link(bpy.data.objects.new(name, gp))
+    obj.location, obj.rotation_euler, obj.scale = (1.0, -2.0, 0.5), (0.4, 0.1, -0.7), (2, 2, 2)
+    bpy.context.view_layer.update()
+    return obj
+
+
+def lines(rng, count, n=5):
+    return [rng.normal(size=(n + k, 3)) for k in range(count)]
+
+
+def test_written_strokes_read_back_in_world_space(bpy_blank):
+    rng = np.random.default_rng(7)
+    obj = moved_gp()
+    a, b = lines(rng, 2), lines(rng, 3)
+    write_strokes(obj, "A", a)
+    layer_b = write_strokes(obj, "B", b, radius=0.05)
+    layer_b.translation, layer_b.rotation, layer_b.scale = (0.3, 0.0, -1.0), (0.5, 0.2, 0.0), (
+        1.5, 1.5, 1.5)
+    # Moving the layer afterwards moves the strokes with it.
+    moved = np.array(layer_b.matrix_local)
+    out = read_sketch(obj)
+    assert [(s.layer_name, s.index) for s in out] == [("A", 0), ("A", 1), ("B", 0), ("B", 1),
+                                                      ("B", 2)]
+    for s, p in zip(out[:2], a, strict=True):
+        np.testing.assert_allclose(s.points_world, p, atol=1e-5)
+        np.testing.assert_allclose(s.radius, 0.01, atol=1e-7)
+    mw = np.array(obj.matrix_world)
+    for s, p in zip(out[2:], b, strict=True):
+        local = (np.linalg.inv(mw) @ np.c_[p, np.ones(len(p))].T).T
+        expect = (mw @ moved @ local.T).T[:, :3]
+        np.testing.assert_allclose(s.points_world, expect, atol=1e-5)
+        np.testing.assert_allclose(s.radius, 0.05, atol=1e-7)
+    assert obj.data.materials[0].is_grease_pencil
+
+
+def test_hidden_layers_and_frames(bpy_blank):
+    rng = np.random.default_rng(8)
+    obj = moved_gp()
+    first, later, other = lines(rng, 1), lines(rng, 2), lines(rng, 1)
+    write_strokes(obj, "A", first, frame=1)
+    write_strokes(obj, "A", later, frame=5)
+    write_strokes(obj, "B", other, frame=1)
+    bpy.context.scene.frame_set(3)
+    assert [len(s.points_world) for s in read_sketch(obj)] == [5, 5]
+    assert [len(s.points_world) for s in read_sketch(obj, frame=7)] == [5, 6, 5]
+    obj.data.layers["B"].hide = True
+    out = read_sketch(obj, frame=7)
+    assert [s.layer_name for s in out] == ["A", "A"]
+    np.testing.assert_allclose(out[1].points_world, later[1], atol=1e-5)
+    assert read_sketch(obj, frame=0) == []
+
+
+def test_data_api_strokes_and_append(bpy_blank):
+    rng = np.random.default_rng(9)
+    first, extra = lines(rng, 2), lines(rng, 1)
+    obj = add_grease_pencil(first)
+    ink = bpy.data.materials.new("Ink")
+    bpy.data.materials.create_gpencil_data(ink)
+    obj.data.materials.append(ink)
+    write_strokes(obj, "Lines", extra, frame=1, replace=False, color=(1.0, 0.2, 0.1))
+    out = read_sketch(obj)
+    assert len(out) == 3
+    for s, p in zip(out, first + extra, strict=True):
+        np.testing.assert_allclose(s.points_world, p, atol=1e-5)
+    index = np.empty(3, dtype=np.int32)
+    drawing = obj.data.layers["Lines"].current_frame().drawing
+    drawing.attributes["material_index"].data.foreach_get("value", index)
+    assert index.tolist() == [0, 0, 1]
+    assert obj.data.materials[1].grease_pencil.color[:] == pytest.approx((1.0, 0.2, 0.1, 1.0))
+
+
+def test_remove_strokes_removes_exactly_the_asked_ones(bpy_blank):
+    rng = np.random.default_rng(10)
+    obj = moved_gp()
+    strokes = lines(rng, 5)
+    write_strokes(obj, "A", strokes)
+    assert remove_strokes(obj, "A", [3, 0]) == 2
+    out = read_sketch(obj)
+    assert len(out) == 3
+    for s, p in zip(out, [strokes[1], strokes[2], strokes[4]], strict=True):
+        np.testing.assert_allclose(s.points_world, p, atol=1e-5)
+    with pytest.raises(InputError, match="3 strokes"):
+        remove_strokes(obj, "A", [3])
+    with pytest.raises(InputError, match="no layer"):
+        remove_strokes(obj, "Nope", [0])
+
+
+def test_chain_edges_orders_paths_and_loops():
+    # Path 4-2-0-3 given out of order, and a loop 1-5-6.
+    edges = np.array([[0, 2], [6, 1], [3, 0], [5, 6], [2, 4], [1, 5]])
+    chains = chain_edges(edges, 7)
+    assert [c.tolist() for c in chains] == [[3, 0, 2, 4], [1, 5, 6, 1]]
+
+
+def test_curve_objects_read_as_polylines(bpy_blank):
+    curve = bpy.data.curves.new("Svg", "CURVE")
+    curve.dimensions = "3D"
+    poly = curve.splines.new("POLY")
+    pts = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.5], [0.0, 2.0, 0.0]])
+    poly.points.add(len(pts) - 1)
+    poly.points.foreach_set("co", np.c_[pts, np.ones(len(pts))].ravel())
+    bez = curve.splines.new("BEZIER")
+    bez.bezier_points.add(1)
+    bez.bezier_points[0].co, bez.bezier_points[1].co = (3.0, 0.0, 0.0), (3.0, 2.0, 0.0)
+    for p in bez.bezier_points:
+        p.handle_left_type = p.handle_right_type = "AUTO"
+    curve.resolution_u = 8
+    obj = link(bpy.data.objects.new("Svg", curve))
+    obj.location, obj.rotation_euler = (0.5, 0.5, 0.0), (0.0, 0.0, np.pi / 2)
+    bpy.context.view_layer.update()
+    out = read_sketch(obj)
+    assert [s.layer_name for s in out] == ["Svg", "Svg"]
+    mw = np.array(obj.matrix_world)
+    np.testing.assert_allclose(out[0].points_world, pts @ mw[:3, :3].T + mw[:3, 3], atol=1e-5)
+    assert len(out[1].points_world) == 9
+    np.testing.assert_allclose(out[1].points_world[[0, -1]], [[0.5, 3.5, 0.0], [-1.5, 3.5, 0.0]],
+                               atol=1e-5)
+
+
+def test_filled_closed_curve_gives_its_outline(bpy_blank):
+    bpy.ops.curve.primitive_bezier_circle_add(radius=2.0, location=(1.0, 0.0, 0.0))
+    obj = bpy.context.object
+    obj.data.dimensions = "2D"
+    obj.data.fill_mode = "BOTH"
+    bpy.context.view_layer.update()
+    (stroke,) = read_sketch(obj)
+    np.testing.assert_allclose(stroke.points_world[0], stroke.points_world[-1])
+    assert len(stroke.points_world) == 4 * obj.data.resolution_u + 1
+    radius = np.linalg.norm(stroke.points_world - [1.0, 0.0, 0.0], axis=1)
+    np.testing.assert_allclose(radius, 2.0, rtol=0.02)
+
+
+def test_strokes_to_2d_projects_and_rejects(bpy_blank):
+    cam = add_camera((0.0, -6.0, 1.0), (0.0, 0.0, 1.0))
+    camera = camera_from_object(cam)
+    line = np.array([[-0.5, 0.0, 1.0], [0.0, 0.0, 1.2], [0.5, 0.0, 1.0]])
+    (stroke,) = strokes_to_2d([line], camera)
+    np.testing.assert_allclose(stroke.points, camera.project(line))
+    with pytest.raises(InputError, match="behind the view"):
+        strokes_to_2d([line - [0.0, 10.0, 0.0]], camera)
+    obj = add_grease_pencil([line, np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])])
+    with pytest.raises(InputError, match="stroke 1 of layer 'Lines' is a single point"):
+        strokes_to_2d(read_sketch(obj), camera)
