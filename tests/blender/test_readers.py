@@ -7,12 +7,13 @@ import pytest
 
 from gesture_pose.core.exceptions import InputError
 
-from .conftest import add_camera, add_grease_pencil, link
+from .conftest import add_camera, add_grease_pencil, build_armature, link
 
 bpy = pytest.importorskip("bpy")
 from mathutils import Quaternion, Vector  # noqa: E402
 
 from gesture_pose.blender.read_armature import _parents_first, read_armature  # noqa: E402
+from gesture_pose.blender.read_mesh import meshes_of, read_skinned_meshes  # noqa: E402
 from gesture_pose.blender.read_strokes import (  # noqa: E402
     chain_edges,
     read_sketch,
@@ -356,3 +357,98 @@ def test_strokes_to_2d_projects_and_rejects(bpy_blank):
     obj = add_grease_pencil([line, np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])])
     with pytest.raises(InputError, match="stroke 1 of layer 'Lines' is a single point"):
         strokes_to_2d(read_sketch(obj), camera)
+
+
+# ----------------------------------------------------------------------------- meshes
+
+CHAIN = (
+    ("lower", (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), None, False, 0.0),
+    ("upper", (0.0, 0.0, 1.0), (0.0, 0.0, 2.0), "lower", True, 0.4),
+)
+
+
+def skinned_column(arm_obj, name="Skin", parent=False, subdivide=False):
+    """A thin ring-stacked column along the chain with explicit weights per ring."""
+    rings = np.linspace(0.0, 2.0, 5)
+    angles = np.linspace(0.0, 2 * np.pi, 4, endpoint=False)
+    verts = [(0.1 * np.cos(a), 0.1 * np.sin(a), z) for z in rings for a in angles]
+    faces = [(4 * r + k, 4 * r + (k + 1) % 4, 4 * (r + 1) + (k + 1) % 4, 4 * (r + 1) + k)
+             for r in range(4) for k in range(4)]
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(verts, [], faces)
+    obj = link(bpy.data.objects.new(name, mesh))
+    lower = obj.vertex_groups.new(name="lower")
+    upper = obj.vertex_groups.new(name="upper")
+    extra = obj.vertex_groups.new(name="not_a_bone")
+    for r, z in enumerate(rings):
+        ring = [4 * r + k for k in range(4)]
+        if r < 4:  # the top ring stays unweighted by bones
+            lower.add(ring, float(np.clip(1.5 - z, 0.0, 1.0)) * 2.0, "REPLACE")
+            upper.add(ring, float(np.clip(z - 0.5, 0.0, 1.0)) * 2.0, "REPLACE")
+        extra.add(ring, 0.7, "REPLACE")
+    if parent:
+        obj.parent, obj.parent_type = arm_obj, "ARMATURE"
+    else:
+        obj.modifiers.new("Armature", "ARMATURE").object = arm_obj
+    if subdivide:
+        obj.modifiers.new("Subsurf", "SUBSURF").levels = 1
+    return obj
+
+
+def test_read_skinned_meshes(bpy_blank):
+    rig = build_armature(CHAIN, location=(0.5, 0.0, 0.2), rotation_euler=(0.0, 0.2, 0.0))
+    bent = skinned_column(rig, "Bent")
+    parented = skinned_column(rig, "Parented", parent=True)
+    link(bpy.data.objects.new("Unrelated", bpy.data.meshes.new("Unrelated")))
+    assert meshes_of(rig) == [bent, parented]
+    pb = rig.pose.bones["upper"]
+    pb.rotation_mode = "XYZ"
+    pb.rotation_euler = (0.8, 0.0, 0.3)
+    bpy.context.view_layer.update()
+    data = read_armature(rig)
+    mesh = read_skinned_meshes(rig, data.skeleton)
+    assert mesh.object_names == ("Bent", "Parented") and mesh.warnings == ()
+    assert mesh.vertex_offsets.tolist() == [0, 20, 40]
+    mw = np.array(bent.matrix_world)
+    co = np.array([v.co for v in bent.data.vertices])
+    np.testing.assert_allclose(mesh.rest_vertices[:20], co @ mw[:3, :3].T + mw[:3, 3],
+                               atol=1e-6)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    for k, obj in enumerate((bent, parented)):
+        evaluated = obj.evaluated_get(depsgraph)
+        posed = np.array([evaluated.matrix_world @ v.co for v in evaluated.data.vertices])
+        np.testing.assert_allclose(mesh.deformed_vertices[20 * k: 20 * (k + 1)], posed,
+                                   atol=1e-5)
+    assert mesh.triangles.shape == (64, 3)
+    assert mesh.triangles[:32].max() < 20 <= mesh.triangles[32:].min()
+    col = {name: data.names.index(name) for name in ("lower", "upper")}
+    ring_z = np.repeat(np.linspace(0.0, 2.0, 5), 4)
+    raw_lower = np.clip(1.5 - ring_z, 0.0, 1.0)
+    raw_upper = np.clip(ring_z - 0.5, 0.0, 1.0)
+    expect_lower = np.where(ring_z < 2.0, raw_lower / (raw_lower + raw_upper), 0.0)
+    np.testing.assert_allclose(mesh.weights[:20, col["lower"]], expect_lower, atol=1e-6)
+    np.testing.assert_allclose(mesh.weights[:20].sum(axis=1), (ring_z < 2.0).astype(float),
+                               atol=1e-6)
+
+
+def test_vertex_count_changes_fall_back_to_blend_skinning(bpy_blank):
+    rig = build_armature(CHAIN)
+    plain = skinned_column(rig, "A")
+    skinned_column(rig, "B", subdivide=True)
+    rig.pose.bones["upper"].rotation_quaternion = Quaternion((1.0, 0.0, 0.0), 0.9)
+    bpy.context.view_layer.update()
+    data = read_armature(rig)
+    mesh = read_skinned_meshes(rig, data.skeleton)
+    assert len(mesh.warnings) == 1 and "'B'" in mesh.warnings[0]
+    # Blender's own deformation of the identical mesh A equals the blend skinning of B.
+    evaluated = plain.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    blender = np.array([v.co for v in evaluated.data.vertices])
+    np.testing.assert_allclose(mesh.deformed_vertices[20:], blender, atol=1e-5)
+    rest_top = mesh.rest_vertices[36:40]
+    np.testing.assert_allclose(mesh.deformed_vertices[36:40], rest_top)
+
+
+def test_no_skinned_mesh_is_an_input_error(bpy_blank):
+    rig = build_armature(CHAIN)
+    with pytest.raises(InputError, match="No mesh is deformed"):
+        read_skinned_meshes(rig, read_armature(rig).skeleton)
