@@ -1,0 +1,221 @@
+"""Linear blend skinning of rigged points with analytic Jacobians (Hahn et al. 2015, Eq. 13).
+
+Every rigged point (a point of an abstraction curve, a representative mesh vertex) is stored
+as per-bone homogeneous rest vectors ``Y_vj = sum_k c_vk w_kj [zbar_k; 1]`` so that its
+position is linear in the bones' skinning matrices::
+
+    x_v(p) = sum_j G_j(p) Y_vj,      G_j = A_j Bw_j^-1              (Eq. 13)
+
+with ``A_j`` the posed world transform of bone ``j`` (a similarity: rotation, uniform scale,
+translation) and ``Bw_j = [R_j | r_j]`` its rest transform in world space. A plain skinned
+vertex has ``Y_vj = w_vj [zbar_v; 1]``; a point at barycentric coordinates on a triangle (the
+draw-over abstraction) blends the three vertices' vectors.
+
+Derivatives (parameters are increments about the current pose, see :mod:`.parameters`): for a
+rotation ``omega_b`` of bone ``b`` about its local axis ``k`` every point moved by the
+subtree of ``b`` turns about the posed joint ``h_b`` around the world axis ``a = F_b e_k``::
+
+    dx_v / d omega_bk = a x (Ysub_vb - Wsub_vb h_b)
+    dx_v / d s_b      = (Ysub_vb - Wsub_vb h_b) / s_b
+    dx_v / d tau_b    = Wsub_vb R_b
+
+where ``Ysub_vb`` sums ``G_j Y_vj`` and ``Wsub_vb`` the weights over the bones ``j`` in the
+subtree of ``b``. Bones that do not inherit their parent's rotation are treated as rigid
+descendants in the Jacobian (use the black-box path for such rigs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..exceptions import InputError
+from ..skeleton import Skeleton
+from .parameters import ParameterSpace, RigPose
+
+
+def rest_matrices(skeleton: Skeleton) -> np.ndarray:
+    """World rest transforms ``Bw = [R | r]`` of every bone, shape ``(n, 4, 4)``."""
+    n = skeleton.n_bones
+    out = np.tile(np.eye(4), (n, 1, 1))
+    out[:, :3, :3] = skeleton.rest_frames
+    out[:, :3, 3] = skeleton.rest_heads
+    return out
+
+
+def descendant_matrix(skeleton: Skeleton) -> np.ndarray:
+    """``D[j, b] = 1`` when bone ``j`` is ``b`` or below it, shape ``(n, n)`` float."""
+    n = skeleton.n_bones
+    d = np.eye(n)
+    for j in range(n):  # parents first: a bone's column set is its parent's plus itself
+        p = skeleton.parents[j]
+        if p >= 0:
+            d[j] += d[p]
+    return d
+
+
+def _levels(parents: np.ndarray) -> list[np.ndarray]:
+    depth = np.zeros(len(parents), dtype=int)
+    for i, p in enumerate(parents):
+        depth[i] = 0 if p < 0 else depth[p] + 1
+    return [np.flatnonzero(depth == d) for d in range(depth.max() + 1)]
+
+
+@dataclass(frozen=True)
+class PosedBones:
+    """Posed bone transforms.
+
+    Attributes:
+        world: Posed world transforms ``A``, shape ``(n, 4, 4)`` (similarities).
+        skinning: Skinning matrices ``G = A Bw^-1``, shape ``(n, 4, 4)``.
+        frames: Posed rotation frames ``F`` (scale removed), shape ``(n, 3, 3)``.
+        heads: Posed heads ``h``, shape ``(n, 3)``, world units.
+        scales: Accumulated uniform scale of every bone, shape ``(n,)``.
+    """
+
+    world: np.ndarray
+    skinning: np.ndarray
+    frames: np.ndarray
+    heads: np.ndarray
+    scales: np.ndarray
+
+
+def pose_bones(skeleton: Skeleton, pose: RigPose) -> PosedBones:
+    """Forward kinematics with per-bone uniform scale (Blender's full scale inheritance).
+
+    ``A_i = A_p Bw_p^-1 Bw_i M_i`` with ``M_i = [s_i Q_i | t_i]`` (``A_i = Bw_i M_i`` for roots);
+    bones that do not inherit rotation keep ``R_i s_i Q_i`` as their linear part.
+
+    Args:
+        skeleton: The rest skeleton.
+        pose: Local rotations, scales and translations.
+
+    Returns:
+        The posed transforms.
+    """
+    n = skeleton.n_bones
+    rest = rest_matrices(skeleton)
+    local = np.tile(np.eye(4), (n, 1, 1))
+    local[:, :3, :3] = pose.rotations * pose.scales[:, None, None]
+    local[:, :3, 3] = pose.translations
+    rest_local = rest @ local
+    world = np.empty((n, 4, 4))
+    parents = skeleton.parents
+    rest_inv = np.linalg.inv(rest)
+    for level in _levels(parents):
+        p = parents[level]
+        roots, kids, kp = level[p < 0], level[p >= 0], p[p >= 0]
+        world[roots] = rest_local[roots]
+        if kids.size:
+            world[kids] = world[kp] @ rest_inv[kp] @ rest_local[kids]
+            keep = ~skeleton.inherit_rotation[kids]
+            if np.any(keep):
+                world[kids[keep], :3, :3] = rest_local[kids[keep], :3, :3]
+    scales = np.cbrt(np.linalg.det(world[:, :3, :3]))
+    frames = world[:, :3, :3] / scales[:, None, None]
+    return PosedBones(world, world @ rest_inv, frames, world[:, :3, 3].copy(), scales)
+
+
+def lbs_weighted_rest(rest_points: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Per-bone homogeneous rest vectors of plain skinned points.
+
+    Args:
+        rest_points: Rest positions in world space, shape ``(m, 3)``.
+        weights: Skinning weights, shape ``(m, n)`` (rows are normalized here; rows
+            summing to zero raise).
+
+    Returns:
+        ``Y``, shape ``(m, n, 4)``.
+
+    Raises:
+        InputError: A point has no weight on any bone.
+    """
+    w = np.asarray(weights, dtype=float)
+    total = w.sum(axis=1, keepdims=True)
+    if np.any(total <= 1e-12):
+        bad = int(np.flatnonzero(total[:, 0] <= 1e-12)[0])
+        raise InputError(f"Rigged point {bad} has no bone weights: give every abstraction "
+                         "vertex a vertex group of a deforming bone, or parent it to a bone.")
+    w = w / total
+    homo = np.concatenate([np.asarray(rest_points, float), np.ones((len(w), 1))], axis=1)
+    return w[:, :, None] * homo[:, None, :]
+
+
+def skin(posed: PosedBones, weighted_rest: np.ndarray) -> np.ndarray:
+    """Posed positions ``x_v = sum_j G_j Y_vj`` (Eq. 13), shape ``(m, 3)``."""
+    return np.einsum("nij,mnj->mi", posed.skinning[:, :3, :], weighted_rest)
+
+
+@dataclass(frozen=True)
+class LbsRig:
+    """An LBS rig evaluating abstraction points and representative vertices.
+
+    Attributes:
+        skeleton: The rest skeleton.
+        space: Which parameters are free.
+        abstraction_rest: ``Y`` of the abstraction points, shape ``(m, n, 4)``.
+        representative_rest: ``Y`` of the representative mesh vertices, shape ``(k, n, 4)``.
+    """
+
+    skeleton: Skeleton
+    space: ParameterSpace
+    abstraction_rest: np.ndarray
+    representative_rest: np.ndarray
+
+    def evaluate(self, pose: RigPose) -> tuple[np.ndarray, np.ndarray]:
+        """Abstraction points ``(m, 3)`` and representative vertices ``(k, 3)`` at ``pose``."""
+        posed = pose_bones(self.skeleton, pose)
+        return skin(posed, self.abstraction_rest), skin(posed, self.representative_rest)
+
+    def jacobians(self, pose: RigPose) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Positions and analytic Jacobians ``J_x`` and ``J_z`` at ``pose``.
+
+        Returns:
+            ``(x (m, 3), z (k, 3), J_x (m, 3, P), J_z (k, 3, P))``.
+        """
+        posed = pose_bones(self.skeleton, pose)
+        dmat = descendant_matrix(self.skeleton)
+        out = []
+        for rest in (self.abstraction_rest, self.representative_rest):
+            out.append(skin(posed, rest))
+            out.append(point_jacobian(posed, rest, self.space, pose, dmat))
+        return out[0], out[2], out[1], out[3]
+
+
+def point_jacobian(posed: PosedBones, weighted_rest: np.ndarray, space: ParameterSpace,
+                   pose: RigPose, dmat: np.ndarray) -> np.ndarray:
+    """Analytic Jacobian of skinned points with respect to the free parameters.
+
+    Args:
+        posed: Posed bones at ``pose``.
+        weighted_rest: ``Y``, shape ``(m, n, 4)``.
+        space: The free parameters.
+        pose: The current pose (for the scales).
+        dmat: :func:`descendant_matrix` of the skeleton, ``(n, n)``.
+
+    Returns:
+        ``J``, shape ``(m, 3, P)``, world units per radian / per unit scale / per unit.
+    """
+    m = len(weighted_rest)
+    per_bone = np.einsum("nij,mnj->mni", posed.skinning[:, :3, :], weighted_rest)
+    wsub = weighted_rest[:, :, 3] @ dmat
+    rel = np.einsum("mjc,jb->mbc", per_bone, dmat) - wsub[:, :, None] * posed.heads[None]
+    blocks = []
+    rb = space.rotation_bones
+    if rb.size:
+        axes = np.swapaxes(posed.frames[rb], 1, 2)  # (r, k, xyz): world axis F e_k
+        jr = np.cross(axes[None, :, :, :], rel[:, rb, None, :])  # (m, r, k, xyz)
+        blocks.append(np.transpose(jr, (0, 3, 1, 2)).reshape(m, 3, -1))
+    sb = space.scale_bones
+    if sb.size:
+        blocks.append(np.swapaxes(rel[:, sb] / pose.scales[sb][None, :, None], 1, 2))
+    tb = space.translation_bones
+    if tb.size:
+        rot = posed.world[tb, :3, :3] / posed.scales[tb, None, None]
+        rest_axes = np.einsum("bij,bjk->bik", rot, pose.rotations[tb].transpose(0, 2, 1))
+        jt = wsub[:, tb, None, None] * rest_axes[None]  # (m, t, xyz, k)
+        blocks.append(np.transpose(jt, (0, 2, 1, 3)).reshape(m, 3, -1))
+    if not blocks:
+        return np.zeros((m, 3, 0))
+    return np.concatenate(blocks, axis=2)
