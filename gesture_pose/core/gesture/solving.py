@@ -1,0 +1,150 @@
+"""The solving skeleton: the bones a gesture drawing can show (Gesture3D Section 5).
+
+Gesture drawings show limbs, torso and head; fingers, toes, face and other bones much
+smaller than the drawing's resolution cannot be located and follow their parents. A bone
+is kept when it deforms and is at least ``min_bone_epsilons`` resampling steps long, with
+the step measured on the rest skeleton the way the drawing's step is measured on the
+drawing (2% of the bounding-box diagonal). A bone collection named "Gesture" overrides the
+automatic choice.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..exceptions import InputError
+from ..skeleton import Skeleton
+from .types import SolvingSkeleton
+
+
+def select_bones(skeleton: Skeleton, override: np.ndarray | None = None,
+                 min_bone_epsilons: float = 2.0, epsilon_fraction: float = 0.02) -> np.ndarray:
+    """Boolean mask of the solving bones, shape ``(n,)``.
+
+    Args:
+        skeleton: The full skeleton.
+        override: Bones of the "Gesture" collection, ``(n,)`` bool, or None.
+        min_bone_epsilons: Shortest kept bone in resampling steps.
+        epsilon_fraction: Step as a fraction of the rest bounding-box diagonal.
+
+    Raises:
+        InputError: The override is empty or no bone is long enough.
+    """
+    if override is not None:
+        mask = np.asarray(override, dtype=bool)
+        if mask.shape != (skeleton.n_bones,) or not mask.any():
+            raise InputError("The 'Gesture' bone collection is empty: add the bones a drawing "
+                             "shows to it, or delete the collection to choose automatically.")
+        return mask
+    deform = np.asarray(skeleton.deform, dtype=bool)
+    if not deform.any():
+        deform = np.ones(skeleton.n_bones, dtype=bool)
+    pts = np.concatenate([skeleton.rest_heads[deform], skeleton.rest_tails[deform]])
+    eps = epsilon_fraction * float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+    mask = deform & (skeleton.lengths >= min_bone_epsilons * eps)
+    if not mask.any():
+        raise InputError("No bone of the armature is long enough to be seen in a drawing.")
+    return mask
+
+
+def build_solving_skeleton(skeleton: Skeleton, mask: np.ndarray) -> SolvingSkeleton:
+    """Build the joint tree of the masked bones.
+
+    A bone's solving parent is its nearest masked ancestor. Its head joint is the parent's
+    tail joint when it is connected (or its head lies on the parent's tail), the parent's
+    head joint when the heads coincide, else a new joint linked to the nearer joint of the
+    parent by a rigid offset.
+
+    Args:
+        skeleton: The full skeleton.
+        mask: Solving bones, ``(n,)`` bool.
+
+    Returns:
+        The solving skeleton.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    bones = np.flatnonzero(mask)
+    position = -np.ones(skeleton.n_bones, dtype=int)
+    position[bones] = np.arange(len(bones))
+    pts = np.concatenate([skeleton.rest_heads, skeleton.rest_tails])
+    tol = 1e-3 * float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+    parent = -np.ones(len(bones), dtype=int)
+    head = np.zeros(len(bones), dtype=int)
+    tail = np.zeros(len(bones), dtype=int)
+    names: list[str] = []
+    jparent: list[int] = []
+    jlink: list[int] = []
+    rest: list[np.ndarray] = []
+
+    def new_joint(name: str, par: int, link: int, where: np.ndarray) -> int:
+        names.append(name)
+        jparent.append(par)
+        jlink.append(link)
+        rest.append(where)
+        return len(names) - 1
+
+    for k, b in enumerate(bones):
+        anc = skeleton.parents[b]
+        while anc >= 0 and not mask[anc]:
+            anc = skeleton.parents[anc]
+        h = skeleton.rest_heads[b]
+        name = skeleton.names[b]
+        if anc < 0:
+            head[k] = new_joint(f"{name} head", -1, -1, h)
+        else:
+            p = position[anc]
+            parent[k] = p
+            d_tail = np.linalg.norm(h - skeleton.rest_tails[anc])
+            d_head = np.linalg.norm(h - skeleton.rest_heads[anc])
+            if (skeleton.connected[b] and skeleton.parents[b] == anc) or d_tail < tol:
+                head[k] = tail[p]
+            elif d_head < tol:
+                head[k] = head[p]
+            else:
+                near = tail[p] if d_tail <= d_head else head[p]
+                head[k] = new_joint(f"{name} head", near, -1, h)
+        tail[k] = new_joint(f"{name} tail", head[k], k, skeleton.rest_tails[b])
+    excluded = np.flatnonzero(~mask & np.asarray(skeleton.deform, dtype=bool))
+    return SolvingSkeleton(bones=bones, parent=parent, head_joint=head, tail_joint=tail,
+                           joint_bones=tuple(names), joint_parent=np.array(jparent, int),
+                           joint_link_bone=np.array(jlink, int), rest_joints=np.array(rest),
+                           excluded=excluded)
+
+
+def solving_skeleton(skeleton: Skeleton, override: np.ndarray | None = None,
+                     min_bone_epsilons: float = 2.0) -> SolvingSkeleton:
+    """Select the solving bones and build their joint tree (see :func:`select_bones`)."""
+    return build_solving_skeleton(skeleton, select_bones(skeleton, override, min_bone_epsilons))
+
+
+def mirror_name(name: str) -> str | None:
+    """The left/right counterpart of a bone name.
+
+    Sides are suffixes (``.L``/``.R``, ``_L``/``_R``, ``-L``/``-R``, lower case too) or the
+    words ``Left``/``Right`` (as in Mixamo rigs).
+
+    Returns:
+        The mirrored name, or None when the name has no side.
+    """
+    for sep in ".-_":
+        for a, b in (("L", "R"), ("l", "r")):
+            for x, y in ((a, b), (b, a)):
+                if name.endswith(sep + x):
+                    return name[:-1] + y
+    for x, y in (("Left", "Right"), ("Right", "Left")):
+        if x in name:
+            return name.replace(x, y, 1)
+    return None
+
+
+def symmetric_joint_pairs(solving: SolvingSkeleton) -> np.ndarray:
+    """Pairs of left/right joints found from the bone names, shape ``(p, 2)`` int."""
+    index = {n: i for i, n in enumerate(solving.joint_bones)}
+    out = []
+    for i, n in enumerate(solving.joint_bones):
+        bone, _, end = n.rpartition(" ")
+        m = mirror_name(bone)
+        m = None if m is None else f"{m} {end}"
+        if m is not None and m in index and index[m] > i:
+            out.append((i, index[m]))
+    return np.array(out, dtype=int).reshape(-1, 2)

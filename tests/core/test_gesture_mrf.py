@@ -1,0 +1,64 @@
+"""The tree DP with pairwise and triplet factors equals brute force on small trees."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from gesture_pose.core.exceptions import InputError
+from gesture_pose.core.gesture.mrf import TreeEnergy, solve_tree
+
+
+def _random_energy(parent: list[int], sizes: list[int], seed: int,
+                   triplets: bool = True) -> TreeEnergy:
+    rng = np.random.default_rng(seed)
+    par = np.array(parent)
+    unary = tuple(rng.random(k) for k in sizes)
+    pair = tuple(None if p < 0 else rng.random((sizes[p], sizes[j])) for j, p in enumerate(par))
+    trip = []
+    for j, p in enumerate(par):
+        if triplets and p >= 0 and par[p] >= 0:
+            trip.append(rng.random((sizes[par[p]], sizes[p], sizes[j])))
+        else:
+            trip.append(None)
+    return TreeEnergy(par, unary, pair, tuple(trip))
+
+
+def _brute(energy: TreeEnergy) -> tuple[np.ndarray, float]:
+    best, arg = np.inf, None
+    for labels in itertools.product(*[range(len(u)) for u in energy.unary]):
+        e = energy.evaluate(np.array(labels))
+        if e < best:
+            best, arg = e, np.array(labels)
+    return arg, best
+
+
+@pytest.mark.parametrize("parent,sizes", [
+    ([-1, 0, 1, 2], [3, 4, 2, 3]),            # chain: triplets on nodes 2 and 3
+    ([-1, 0, 0, 1, 2, 1], [2, 3, 3, 2, 3, 2]),  # branching at the root and below
+    ([-1, 0, 1, 1, 1, -1, 5], [3, 2, 3, 2, 2, 3, 2]),  # a forest, a 3-way branch
+])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_dp_equals_brute_force(parent, sizes, seed):
+    energy = _random_energy(parent, sizes, seed)
+    labels, value = solve_tree(energy)
+    ref_labels, ref_value = _brute(energy)
+    assert value == pytest.approx(ref_value, abs=1e-12)
+    assert energy.evaluate(labels) == pytest.approx(ref_value, abs=1e-12)
+    np.testing.assert_array_equal(labels, ref_labels)
+
+
+def test_dp_without_triplets_and_single_node():
+    energy = _random_energy([-1, 0, 0, 2], [4, 3, 2, 3], seed=7, triplets=False)
+    labels, value = solve_tree(energy)
+    assert value == pytest.approx(_brute(energy)[1])
+    single = TreeEnergy(np.array([-1]), (np.array([0.5, 0.2, 0.9]),), (None,), (None,))
+    assert solve_tree(single)[0].tolist() == [1]
+
+
+def test_wrong_table_shape_is_rejected():
+    with pytest.raises(InputError):
+        TreeEnergy(np.array([-1, 0]), (np.zeros(2), np.zeros(3)), (None, np.zeros((3, 3))),
+                   (None, None))
