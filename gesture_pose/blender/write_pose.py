@@ -1,0 +1,155 @@
+"""Write core local rotations back to pose bones, in each bone's rotation mode, and key them.
+
+Only bones whose rotation changed are touched, and only their rotation channel is keyed
+(plus ``location`` for the bones asked for), at one frame. Values stay continuous with
+the current ones: quaternions keep the hemisphere of the current value, Euler angles use
+Blender's compatible-Euler conversion and axis-angle keeps the side of the current axis.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import bpy
+import numpy as np
+from mathutils import Matrix, Vector
+
+from ..core.exceptions import InputError
+from ..core.skeleton import Pose
+from .read_armature import ArmatureData
+
+_MODE_CHANNEL = {"QUATERNION": "rotation_quaternion", "AXIS_ANGLE": "rotation_axis_angle"}
+
+
+def rotation_channel(mode: str) -> str:
+    """The pose-bone property holding the rotation in ``mode`` (e.g. ``'rotation_euler'``)."""
+    return _MODE_CHANNEL.get(mode, "rotation_euler")
+
+
+def _indices(data: ArmatureData, bones: Sequence[int | str] | None) -> list[int]:
+    n = data.skeleton.n_bones
+    if bones is None:
+        return list(range(n))
+    out = [data.skeleton.index(b) if isinstance(b, str) else int(b) for b in bones]
+    bad = [i for i in out if not 0 <= i < n]
+    if bad:
+        raise InputError(f"Bone indices {bad} are out of range for {n} bones.")
+    return out
+
+
+def _check_pose(data: ArmatureData, pose: Pose) -> None:
+    n = data.skeleton.n_bones
+    rot, trans = np.asarray(pose.rotations), np.asarray(pose.translations)
+    if rot.shape != (n, 3, 3) or trans.shape != (n, 3):
+        raise InputError(f"The pose has {rot.shape[0]} bones but the armature "
+                         f"'{data.object_name}' has {n}: read the armature again.")
+    if not (np.all(np.isfinite(rot)) and np.all(np.isfinite(trans))):
+        raise InputError("The computed pose has NaN values; nothing was written.")
+
+
+def set_rotation(pb: bpy.types.PoseBone, rotation: np.ndarray) -> str:
+    """Assign a local rotation to a pose bone in its rotation mode, continuously.
+
+    Args:
+        pb: The pose bone.
+        rotation: Local rotation matrix (``matrix_basis`` rotation), shape ``(3, 3)``.
+
+    Returns:
+        The name of the channel written.
+    """
+    quat = Matrix(np.asarray(rotation, dtype=float).tolist()).to_quaternion()
+    mode = pb.rotation_mode
+    if mode == "QUATERNION":
+        if quat.dot(pb.rotation_quaternion) < 0.0:
+            quat.negate()
+        pb.rotation_quaternion = quat
+    elif mode == "AXIS_ANGLE":
+        axis, angle = quat.to_axis_angle()
+        if axis.dot(Vector(pb.rotation_axis_angle[1:])) < 0.0:
+            axis, angle = -axis, -angle
+        pb.rotation_axis_angle = (angle, *axis)
+    else:
+        pb.rotation_euler = quat.to_euler(mode, pb.rotation_euler)
+    return rotation_channel(mode)
+
+
+def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
+               bones: Sequence[int | str] | None = None, insert_keys: bool = True,
+               frame: float | None = None, location_bones: Sequence[int | str] = (),
+               tol: float = 1e-7) -> list[str]:
+    """Write the changed local rotations (and chosen locations) of a pose to the armature.
+
+    Args:
+        arm_obj: The armature object ``data`` was read from.
+        data: The armature as read before solving (its pose is the "unchanged" reference).
+        new_pose: Local rotations and translations in skeleton order.
+        bones: Bones (indices or names) allowed to change; all when None.
+        insert_keys: Key the written channels.
+        frame: Frame of the keys (the scene's current frame when None).
+        location_bones: Bones whose location is also written and keyed from
+            ``new_pose.translations`` (world units, divided by the object scale).
+        tol: Bones whose rotation matrix entries change by at most ``tol`` are skipped.
+
+    Returns:
+        Names of the bones written, in skeleton order.
+
+    Raises:
+        InputError: The pose does not match the armature or has NaN values (nothing is
+            written).
+    """
+    _check_pose(data, new_pose)
+    selected = _indices(data, bones)
+    with_location = set(_indices(data, location_bones))
+    frame = bpy.context.scene.frame_current if frame is None else frame
+    diff = np.abs(np.asarray(new_pose.rotations) - data.pose.rotations).max(axis=(1, 2))
+    old_t, new_t = data.pose.translations, np.asarray(new_pose.translations, dtype=float)
+    moved = np.abs(new_t - old_t).max(axis=1) > tol
+    written = []
+    for i in sorted(set(selected) | with_location):
+        name = data.skeleton.names[i]
+        pb = arm_obj.pose.bones.get(name)
+        if pb is None:
+            raise InputError(f"Bone '{name}' no longer exists in '{arm_obj.name}': read the "
+                             "armature again.")
+        channels = []
+        if i in selected and diff[i] > tol:
+            channels.append(set_rotation(pb, new_pose.rotations[i]))
+        if i in with_location and moved[i]:
+            pb.location = new_t[i] / data.object_scale
+            channels.append("location")
+        if not channels:
+            continue
+        if insert_keys:
+            for channel in channels:
+                pb.keyframe_insert(channel, frame=frame, group=name)
+        written.append(name)
+    return written
+
+
+def keyed_frames(arm_obj: bpy.types.Object, bone_name: str, channel: str) -> list[float]:
+    """Frames at which a pose-bone channel has keys in the object's current action slot.
+
+    Args:
+        arm_obj: The armature object.
+        bone_name: Pose bone name.
+        channel: Property name, e.g. ``'rotation_quaternion'`` or ``'location'``.
+
+    Returns:
+        Sorted distinct key frames over all components of the channel.
+    """
+    from bpy_extras.anim_utils import action_get_channelbag_for_slot
+
+    anim = arm_obj.animation_data
+    if anim is None or anim.action is None:
+        return []
+    bag = action_get_channelbag_for_slot(anim.action, anim.action_slot)
+    if bag is None:
+        return []
+    path = f'pose.bones["{bpy.utils.escape_identifier(bone_name)}"].{channel}'
+    frames: set[float] = set()
+    for fcurve in bag.fcurves:
+        if fcurve.data_path == path and len(fcurve.keyframe_points):
+            co = np.empty(2 * len(fcurve.keyframe_points))
+            fcurve.keyframe_points.foreach_get("co", co)
+            frames.update(co[0::2].tolist())
+    return sorted(frames)

@@ -1,0 +1,173 @@
+"""Writing poses back: world frames, rotation modes, continuity, keys, errors and undo."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gesture_pose.core.exceptions import InputError
+from gesture_pose.core.rotations import exp_map
+from gesture_pose.core.skeleton import Pose
+
+from .test_readers import MODES, blender_world, random_pose
+
+bpy = pytest.importorskip("bpy")
+from mathutils import Euler, Quaternion  # noqa: E402
+
+from gesture_pose.blender.read_armature import read_armature  # noqa: E402
+from gesture_pose.blender.write_pose import apply_pose, keyed_frames  # noqa: E402
+
+pytestmark = pytest.mark.blender
+
+
+def random_rotations(rng, n, scale=1.0):
+    return exp_map(rng.normal(scale=scale, size=(n, 3)))
+
+
+def values(obj, name, channel):
+    return tuple(getattr(obj.pose.bones[name], channel))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_written_pose_matches_forward_kinematics_in_every_mode(two_root_rig, seed):
+    rng = np.random.default_rng(seed + 20)
+    modes = MODES[4 * seed:] + MODES[:4 * seed]
+    random_pose(two_root_rig, rng, modes)
+    data = read_armature(two_root_rig)
+    n = data.skeleton.n_bones
+    moved = data.pose.translations + rng.normal(size=(n, 3))
+    new = Pose(random_rotations(rng, n), moved)
+    written = apply_pose(two_root_rig, data, new, insert_keys=False, location_bones=[0])
+    # Only bone 0's location is written; the other bones keep their translations.
+    new = Pose(new.rotations, np.r_[moved[:1], data.pose.translations[1:]])
+    assert written == list(data.names)
+    bpy.context.view_layer.update()
+    expect = data.skeleton.forward(new)
+    heads, tails, frames = blender_world(two_root_rig)
+    for i, name in enumerate(data.names):
+        np.testing.assert_allclose(frames[name], expect.frames[i], atol=1e-5)
+        np.testing.assert_allclose(heads[name], expect.heads[i], atol=1e-5)
+        np.testing.assert_allclose(tails[name], expect.tails[i], atol=1e-5)
+    again = read_armature(two_root_rig)
+    assert again.rotation_modes == data.rotation_modes
+    np.testing.assert_allclose(again.pose.rotations, new.rotations, atol=1e-5)
+    assert two_root_rig.animation_data is None
+
+
+def test_keys_only_changed_bones_at_the_current_frame(two_root_rig):
+    rig = two_root_rig
+    for name, frame in (("hip", 1), ("prop", 3)):
+        rig.pose.bones[name].rotation_quaternion = Quaternion((0.0, 0.0, 1.0), 0.2 * frame)
+        rig.pose.bones[name].keyframe_insert("rotation_quaternion", frame=frame)
+    rig.pose.bones["prop"].keyframe_insert("location", frame=3)
+    bpy.context.scene.frame_set(7)
+    before = {name: values(rig, name, "rotation_quaternion") for name in ("hip", "prop")}
+    data = read_armature(rig)
+    rot = data.pose.rotations.copy()
+    arm, fore, spine = (data.names.index(b) for b in ("arm", "fore", "spine"))
+    rot[[arm, fore, spine]] = exp_map(np.array([[0.3, 0.0, 0.1], [0.0, 0.5, 0.0],
+                                                [0.2, 0.2, 0.2]]))
+    new = Pose(rot, data.pose.translations + 1.0)
+    written = apply_pose(rig, data, new, bones=["arm", "fore", "hip"])
+    assert written == ["arm", "fore"]
+    assert keyed_frames(rig, "arm", "rotation_quaternion") == [7.0]
+    assert keyed_frames(rig, "fore", "rotation_quaternion") == [7.0]
+    assert keyed_frames(rig, "spine", "rotation_quaternion") == []
+    assert keyed_frames(rig, "arm", "location") == []
+    assert keyed_frames(rig, "hip", "rotation_quaternion") == [1.0]
+    assert keyed_frames(rig, "prop", "rotation_quaternion") == [3.0]
+    assert keyed_frames(rig, "prop", "location") == [3.0]
+    bpy.context.scene.frame_set(1)
+    assert values(rig, "hip", "rotation_quaternion") == pytest.approx(before["hip"])
+    np.testing.assert_allclose(values(rig, "spine", "rotation_quaternion"), (1, 0, 0, 0))
+    np.testing.assert_allclose(values(rig, "arm", "location"), (0, 0, 0))
+    from bpy_extras.anim_utils import action_get_channelbag_for_slot
+
+    bag = action_get_channelbag_for_slot(rig.animation_data.action,
+                                         rig.animation_data.action_slot)
+    groups = {fc.data_path.split('"')[1]: fc.group.name for fc in bag.fcurves}
+    assert groups["arm"] == "arm" and groups["fore"] == "fore"
+
+
+def test_continuity_with_current_values(two_root_rig):
+    rig = two_root_rig
+    hip, spine, arm = (rig.pose.bones[n] for n in ("hip", "spine", "arm"))
+    hip.rotation_quaternion = (-0.9, 0.1, -0.3, 0.2)
+    spine.rotation_mode, spine.rotation_euler = "ZXY", (0.1, -0.2, 2 * np.pi + 0.3)
+    arm.rotation_mode, arm.rotation_axis_angle = "AXIS_ANGLE", (-0.4, 0.0, 0.0, -1.0)
+    bpy.context.view_layer.update()
+    data = read_armature(rig)
+    i_hip, i_spine, i_arm = (data.names.index(b) for b in ("hip", "spine", "arm"))
+    nudge = exp_map(np.array([0.01, 0.02, -0.01]))
+    rot = data.pose.rotations.copy()
+    rot[[i_hip, i_spine, i_arm]] = rot[[i_hip, i_spine, i_arm]] @ nudge
+    apply_pose(rig, data, Pose(rot, data.pose.translations), insert_keys=False)
+    q = Quaternion(values(rig, "hip", "rotation_quaternion"))
+    assert q.dot(Quaternion((-0.9, 0.1, -0.3, 0.2)).normalized()) > 0.99
+    e = values(rig, "spine", "rotation_euler")
+    assert e[2] == pytest.approx(2 * np.pi + 0.3, abs=0.05)
+    angle, *axis = values(rig, "arm", "rotation_axis_angle")
+    assert axis[2] < -0.9 and angle == pytest.approx(-0.4, abs=0.05)
+    np.testing.assert_allclose(read_armature(rig).pose.rotations, rot, atol=1e-5)
+
+
+def test_location_bones_divide_by_object_scale(two_root_rig):
+    rig = two_root_rig
+    data = read_armature(rig)
+    t = data.pose.translations.copy()
+    t[:] = [0.17, -0.34, 0.51]
+    apply_pose(rig, data, Pose(data.pose.rotations, t), location_bones=["prop"])
+    np.testing.assert_allclose(values(rig, "prop", "location"), np.array([0.1, -0.2, 0.3]),
+                               atol=1e-6)
+    np.testing.assert_allclose(values(rig, "hip", "location"), (0, 0, 0))
+    assert keyed_frames(rig, "prop", "location") == [1.0]
+    assert keyed_frames(rig, "prop", "rotation_quaternion") == []
+
+
+def test_bad_poses_write_nothing(two_root_rig):
+    rig = two_root_rig
+    data = read_armature(rig)
+    rot = data.pose.rotations.copy()
+    rot[0] = exp_map(np.array([0.5, 0.0, 0.0]))
+    rot[-1, 0, 0] = np.nan
+    with pytest.raises(InputError, match="NaN"):
+        apply_pose(rig, data, Pose(rot, data.pose.translations))
+    with pytest.raises(InputError, match="has 2 bones"):
+        apply_pose(rig, data, Pose.identity(2))
+    with pytest.raises(InputError, match="out of range"):
+        apply_pose(rig, data, Pose(data.pose.rotations, data.pose.translations), bones=[9])
+    assert rig.animation_data is None
+    np.testing.assert_allclose(read_armature(rig).pose.rotations, data.pose.rotations)
+
+
+def test_undo_restores_the_previous_pose(two_root_rig):
+    # Undo works headless with the bpy module once a step has been pushed.
+    bpy.ops.ed.undo_push(message="before")
+    data = read_armature(two_root_rig)
+    n = data.skeleton.n_bones
+    new = Pose(random_rotations(np.random.default_rng(5), n), data.pose.translations)
+    assert len(apply_pose(two_root_rig, data, new)) == n
+    bpy.ops.ed.undo_push(message="posed")
+    assert bpy.ops.ed.undo() == {"FINISHED"}
+    rig = bpy.data.objects["Rig"]  # undo replaces the Python objects
+    assert rig.animation_data is None
+    np.testing.assert_allclose(read_armature(rig).pose.rotations, data.pose.rotations,
+                               atol=1e-6)
+    assert bpy.ops.ed.redo() == {"FINISHED"}
+    rig = bpy.data.objects["Rig"]
+    np.testing.assert_allclose(read_armature(rig).pose.rotations, new.rotations, atol=1e-5)
+    assert keyed_frames(rig, data.names[0], "rotation_quaternion") == [1.0]
+
+
+def test_euler_mode_keys_rotation_euler(two_root_rig):
+    rig = two_root_rig
+    rig.pose.bones["fore"].rotation_mode = "YZX"
+    data = read_armature(rig)
+    i = data.names.index("fore")
+    rot = data.pose.rotations.copy()
+    rot[i] = Euler((0.2, -0.4, 0.6), "YZX").to_matrix()
+    assert apply_pose(rig, data, Pose(rot, data.pose.translations), frame=12) == ["fore"]
+    assert keyed_frames(rig, "fore", "rotation_euler") == [12.0]
+    assert keyed_frames(rig, "fore", "rotation_quaternion") == []
+    np.testing.assert_allclose(values(rig, "fore", "rotation_euler"), (0.2, -0.4, 0.6),
+                               atol=1e-6)
