@@ -1,0 +1,295 @@
+"""The character's stick model: major joints, stick edges and the bones that move them.
+
+Humanoids are recognised from bone names (``pelvis``/``hips``, ``neck``, ``head``, upper
+arm, forearm, hand, thigh, shin, foot, toe with a left/right marker such as ``.L``,
+``_L`` or ``Left``). The stick figure of Lin et al. (2012) has a pelvis root of
+degree 3 (spine and two legs), a neck of degree 4 (spine, head and two arms), elbows,
+wrists, knees and ankles, and optional hand and foot tips.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..exceptions import InputError
+from ..rotations import normalize
+from ..skeleton import Skeleton
+
+#: Stick joints of a humanoid, parents first: (name, parent joint, optional).
+HUMANOID_JOINTS: tuple[tuple[str, str | None, bool], ...] = (
+    ("pelvis", None, False),
+    ("neck", "pelvis", False),
+    ("head", "neck", False),
+    ("elbow.L", "neck", False),
+    ("wrist.L", "elbow.L", False),
+    ("hand.L", "wrist.L", True),
+    ("elbow.R", "neck", False),
+    ("wrist.R", "elbow.R", False),
+    ("hand.R", "wrist.R", True),
+    ("knee.L", "pelvis", False),
+    ("ankle.L", "knee.L", False),
+    ("toe.L", "ankle.L", True),
+    ("knee.R", "pelvis", False),
+    ("ankle.R", "knee.R", False),
+    ("toe.R", "ankle.R", True),
+)
+
+_ROLE_WORDS: dict[str, tuple[str, ...]] = {
+    "pelvis": ("pelvis", "hips", "hip", "root"),
+    "neck": ("neck",),
+    "head": ("head",),
+    "upper_arm": ("upperarm", "arm", "uparm"),
+    "forearm": ("forearm", "lowerarm", "elbow"),
+    "hand": ("hand", "wrist"),
+    "thigh": ("thigh", "upperleg", "upleg", "hip"),
+    "shin": ("shin", "lowerleg", "leg", "calf", "knee"),
+    "foot": ("foot", "ankle"),
+    "toe": ("toe", "toes", "toebase", "ball"),
+}
+_SIDED = {"upper_arm", "forearm", "hand", "thigh", "shin", "foot", "toe"}
+_SIDE_PATTERNS = (
+    (re.compile(r"([._\- ]|^)(l|left)$|^(l|left)[._\- ]|^left|left(?=[A-Z])", re.I), "L"),
+    (re.compile(r"([._\- ]|^)(r|right)$|^(r|right)[._\- ]|^right|right(?=[A-Z])", re.I), "R"),
+)
+
+
+def bone_side(name: str) -> str:
+    """``"L"``, ``"R"`` or ``""`` from markers such as ``.L``, ``_R``, ``Left``, ``r_``."""
+    for pattern, side in _SIDE_PATTERNS:
+        if pattern.search(name):
+            return side
+    return ""
+
+
+def _role_word(name: str) -> str:
+    """Bone name without side markers, digits and punctuation, lower case."""
+    word = re.sub(r"([._\- ](l|r|left|right))$|^(l|r|left|right)[._\- ]", "", name, flags=re.I)
+    word = re.sub(r"^(left|right)", "", word, flags=re.I)
+    return re.sub(r"[^a-z]", "", word.lower())
+
+
+@dataclass(frozen=True)
+class GeneGroup:
+    """Bones that share one set of rotation genes.
+
+    Every bone ``b`` of the group gets the local rotation ``Q0_b exp(B_b g / k)`` with
+    ``k = len(bones)`` (a bending spine shares its rotation equally).
+
+    Attributes:
+        name: Readable name (``"spine"``, ``"forearm.L"``, ...).
+        bones: Bone indices, shape ``(k,)``.
+        bases: Local axes of the genes per bone, shape ``(k, 3, m)`` (orthonormal columns).
+        bounds: Gene bounds in radians, shape ``(m, 2)``.
+    """
+
+    name: str
+    bones: np.ndarray
+    bases: np.ndarray
+    bounds: np.ndarray
+
+
+@dataclass(frozen=True)
+class CharacterFigure:
+    """The stick model of a character.
+
+    Attributes:
+        joint_names: Stick joint names, parents first (``HUMANOID_JOINTS`` order).
+        joint_parents: Parent joint per joint, -1 for the pelvis, shape ``(J,)``.
+        joint_bones: Bone whose head or tail is the joint, shape ``(J,)``.
+        joint_at_tail: Whether the joint is that bone's tail, shape ``(J,)``.
+        optional: Joints the drawing may omit (hand and foot tips), shape ``(J,)``.
+        root_bone: The pelvis bone (free translation and rotation).
+        groups: Rotation gene groups of the other moving bones.
+        forward: The character's rest facing direction in world space, shape ``(3,)``.
+        up: World up, shape ``(3,)``.
+    """
+
+    joint_names: tuple[str, ...]
+    joint_parents: np.ndarray
+    joint_bones: np.ndarray
+    joint_at_tail: np.ndarray
+    optional: np.ndarray
+    root_bone: int
+    groups: tuple[GeneGroup, ...]
+    forward: np.ndarray
+    up: np.ndarray
+
+    @property
+    def n_joints(self) -> int:
+        """Number of stick joints."""
+        return len(self.joint_names)
+
+    def joint(self, name: str) -> int:
+        """Index of the stick joint ``name``."""
+        return self.joint_names.index(name)
+
+    def edges(self) -> np.ndarray:
+        """Stick edges ``(parent, child)`` as joint indices, shape ``(J - 1, 2)``."""
+        child = np.flatnonzero(self.joint_parents >= 0)
+        return np.stack([self.joint_parents[child], child], 1)
+
+    def joint_positions(self, heads: np.ndarray, tails: np.ndarray) -> np.ndarray:
+        """Joint positions from posed bones, ``(..., n, 3) -> (..., J, 3)``."""
+        return np.where(self.joint_at_tail[:, None], tails[..., self.joint_bones, :],
+                        heads[..., self.joint_bones, :])
+
+
+def find_humanoid_bones(skeleton: Skeleton) -> dict[str, int]:
+    """Map humanoid roles (``"pelvis"``, ``"upper_arm.L"``, ...) to bone indices by name.
+
+    Args:
+        skeleton: The character's skeleton.
+
+    Returns:
+        Roles found; sided roles end in ``.L`` or ``.R``. Only deforming bones are used
+        when the armature has any.
+
+    Raises:
+        InputError: A role needed by the stick figure is missing.
+    """
+    found: dict[str, int] = {}
+    usable = skeleton.deform if np.any(skeleton.deform) else np.ones(skeleton.n_bones, bool)
+    for i, name in enumerate(skeleton.names):
+        word, side = _role_word(name), bone_side(name)
+        for role, words in _ROLE_WORDS.items():
+            if word not in words or (role in _SIDED) != bool(side):
+                continue
+            key = f"{role}.{side}" if side else role
+            if key not in found and (usable[i] or role == "pelvis"):
+                found[key] = i
+            break
+    required = ["pelvis", "neck", "head"] + [f"{r}.{s}" for s in "LR" for r in
+                                             ("upper_arm", "forearm", "hand", "thigh",
+                                              "shin", "foot")]
+    missing = [r for r in required if r not in found]
+    if missing:
+        raise InputError(
+            f"The armature is not recognised as a humanoid (no bones for {missing}); "
+            "name its bones like pelvis/hips, neck, head, upper_arm.L, forearm.L, hand.L, "
+            "thigh.L, shin.L, foot.L (and .R), or draw a figure matching its topology.")
+    return found
+
+
+def _path(skeleton: Skeleton, top: int, bottom: int) -> list[int]:
+    """Bones strictly between ancestor ``top`` and ``bottom`` plus ``bottom``, top first."""
+    chain = skeleton.ancestors(bottom)
+    if top not in chain:
+        raise InputError(f"Bone '{skeleton.names[bottom]}' is not below "
+                         f"'{skeleton.names[top]}': check the armature's hierarchy.")
+    return chain[: chain.index(top)][::-1]
+
+
+def _limb_axes(skeleton: Skeleton, upper: int, lower: int, forward: np.ndarray,
+               bend_forward: bool) -> np.ndarray:
+    """World hinge axis ``a`` of a limb: rotating the lower bone by ``+theta`` flexes it.
+
+    The rest bend of the limb gives the axis when it exceeds 3 degrees; otherwise the
+    limb is assumed to flex forward (elbow) or backward (knee) relative to ``forward``.
+    """
+    d1 = normalize(skeleton.rest_tails[upper] - skeleton.rest_heads[upper])
+    d2 = normalize(skeleton.rest_tails[lower] - skeleton.rest_heads[lower])
+    axis = np.cross(d1, d2)
+    if np.linalg.norm(axis) > np.sin(np.radians(3.0)):
+        return normalize(axis)
+    f = forward if bend_forward else -forward
+    f = f - d2 * (f @ d2)
+    return normalize(np.cross(d2, f))
+
+
+def _ball(skeleton: Skeleton, bone: int, axis: np.ndarray, bounds_deg) -> tuple:
+    """Gene basis of a limb bone: columns hinge axis, bone direction and their cross."""
+    d = normalize(skeleton.rest_tails[bone] - skeleton.rest_heads[bone])
+    a = normalize(axis - d * (axis @ d))
+    world = np.stack([a, d, np.cross(a, d)], 1)
+    return skeleton.rest_frames[bone].T @ world, np.radians(np.asarray(bounds_deg, float))
+
+
+def _group(name, skeleton, bones, basis_bounds, ik_limits) -> GeneGroup:
+    """A gene group, replaced by the rig's IK limits when the bone has any."""
+    bones = np.asarray(bones, int)
+    basis, bounds = basis_bounds
+    if ik_limits is not None and len(bones) == 1 and np.any(np.isfinite(ik_limits[bones[0]])):
+        lim = ik_limits[bones[0]]
+        bounds = np.where(np.isfinite(lim), lim, np.radians([[-120.0, 120.0]] * 3))
+        basis = np.eye(3)
+    bases = np.broadcast_to(basis, (len(bones),) + basis.shape).copy()
+    return GeneGroup(name, bones, bases, np.asarray(bounds, float))
+
+
+def humanoid_figure(skeleton: Skeleton, ik_limits: np.ndarray | None = None,
+                    up: np.ndarray = (0.0, 0.0, 1.0)) -> CharacterFigure:
+    """Build the stick model of a humanoid skeleton.
+
+    Ranges of motion are the rig's IK limits where set (``ik_limits``, ``(n, 3, 2)``
+    radians, NaN where unlimited) and anatomical defaults otherwise: hinge elbows and
+    knees flexing 0-150 degrees, balls elsewhere.
+
+    Args:
+        skeleton: Rest skeleton (world space).
+        ik_limits: Optional per-bone IK limits, shape ``(n, 3, 2)``.
+        up: World up direction, shape ``(3,)``.
+
+    Returns:
+        The figure.
+    """
+    b = find_humanoid_bones(skeleton)
+    up = normalize(np.asarray(up, float))
+    forward = np.array([0.0, -1.0, 0.0])
+    f = sum(skeleton.rest_tails[b[f"foot.{s}"]] - skeleton.rest_heads[b[f"foot.{s}"]]
+            for s in "LR")
+    f = f - up * (f @ up)
+    if np.linalg.norm(f) > 1e-3:
+        forward = normalize(f)
+    pelvis = b["pelvis"]
+    joints, bones, at_tail = [], [], []
+    for name, _, _ in HUMANOID_JOINTS:
+        side = name[-1] if name[-2:] in (".L", ".R") else ""
+        base = name[:-2] if side else name
+        bone, tail = {
+            "pelvis": (pelvis, False), "neck": (b["neck"], False), "head": (b["head"], True),
+            "elbow": (b.get(f"forearm.{side}"), False), "wrist": (b.get(f"hand.{side}"), False),
+            "hand": (b.get(f"hand.{side}"), True), "knee": (b.get(f"shin.{side}"), False),
+            "ankle": (b.get(f"foot.{side}"), False),
+            "toe": (b.get(f"toe.{side}", b.get(f"foot.{side}")), True),
+        }[base]
+        joints.append(name)
+        bones.append(bone)
+        at_tail.append(tail)
+    index = {n: i for i, n in enumerate(joints)}
+    parents = np.array([index[p] if p else -1 for _, p, _ in HUMANOID_JOINTS])
+    groups = [
+        _group("spine", skeleton, _path(skeleton, pelvis, b["neck"])[:-1],
+               (np.eye(3), np.radians([[-60, 60], [-45, 45], [-45, 45]])), None),
+        _group("head", skeleton, [b["neck"], b["head"]],
+               (np.eye(3), np.radians([[-60, 60], [-70, 70], [-50, 50]])), None),
+    ]
+    for s in "LR":
+        ua, fa, hd = b[f"upper_arm.{s}"], b[f"forearm.{s}"], b[f"hand.{s}"]
+        th, sh, ft = b[f"thigh.{s}"], b[f"shin.{s}"], b[f"foot.{s}"]
+        elbow = _limb_axes(skeleton, ua, fa, forward, True)
+        knee = _limb_axes(skeleton, th, sh, forward, False)
+        groups += [
+            _group(f"upper_arm.{s}", skeleton, [ua],
+                   _ball(skeleton, ua, elbow, [[-150, 150], [-90, 90], [-150, 150]]),
+                   ik_limits),
+            _group(f"forearm.{s}", skeleton, [fa],
+                   (skeleton.rest_frames[fa].T @ elbow[:, None], np.radians([[0.0, 150.0]])),
+                   ik_limits),
+            _group(f"hand.{s}", skeleton, [hd],
+                   _ball(skeleton, hd, elbow, [[-70, 70], [-30, 30], [-60, 60]]), ik_limits),
+            _group(f"thigh.{s}", skeleton, [th],
+                   _ball(skeleton, th, knee, [[-140, 40], [-45, 45], [-70, 70]]), ik_limits),
+            _group(f"shin.{s}", skeleton, [sh],
+                   (skeleton.rest_frames[sh].T @ knee[:, None], np.radians([[0.0, 150.0]])),
+                   ik_limits),
+            _group(f"foot.{s}", skeleton, [ft],
+                   _ball(skeleton, ft, knee, [[-45, 45], [-30, 30], [-30, 30]]), ik_limits),
+        ]
+    groups = [g for g in groups if len(g.bones)]
+    return CharacterFigure(
+        joint_names=tuple(joints), joint_parents=parents, joint_bones=np.array(bones),
+        joint_at_tail=np.array(at_tail), optional=np.array([o for *_, o in HUMANOID_JOINTS]),
+        root_bone=pelvis, groups=tuple(groups), forward=forward, up=up)

@@ -1,0 +1,217 @@
+"""Pose genes and forward kinematics vectorized over a whole population.
+
+A pose is a gene vector ``x = [t (3), omega (3), g_1, ..., g_m]``: the root's world
+translation ``t`` (world units), its world rotation ``G = exp(omega)`` applied on top of
+the base pose, and the rotation genes of every :class:`~.figure.GeneGroup`. With the base
+local rotations ``Q0`` the local rotation of a bone ``b`` in a group of ``k`` bones is
+``Q_b = Q0_b exp(B_b g / k)`` and the root's is ``Q_r = C^T G C Q0_r`` (``C`` the root's
+parent carry, fixed). Jacobians are analytic: a gene turning bone ``b`` about the world
+axis ``w`` moves every point ``p`` below ``b`` by ``w x (p - head_b)``, with
+``w = F_b J_r(phi) B_b e / k`` (``J_r`` the right Jacobian of the exponential map).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..rotations import exp_map, skew
+from ..skeleton import Pose, Skeleton
+from .figure import CharacterFigure
+
+N_ROOT_GENES = 6
+
+
+def right_jacobian(phi: np.ndarray) -> np.ndarray:
+    """Right Jacobian of SO(3)'s exponential map, ``(..., 3) -> (..., 3, 3)``.
+
+    ``d exp(phi) = exp(phi) [J_r(phi) d phi]_x``.
+    """
+    phi = np.asarray(phi, float)
+    th = np.linalg.norm(phi, axis=-1)[..., None, None]
+    k = skew(phi)
+    small = th < 1e-6
+    safe = np.where(small, 1.0, th)
+    a = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    b = np.where(small, 1.0 / 6.0 - th**2 / 120.0, (safe - np.sin(safe)) / safe**3)
+    return np.eye(3) - a * k + b * (k @ k)
+
+
+@dataclass(frozen=True)
+class PoseModel:
+    """Genes -> bone transforms for one character.
+
+    Attributes:
+        skeleton: Rest skeleton.
+        figure: Stick model with the gene groups.
+        base: Base pose (bones outside the groups keep its rotations), ``Pose``.
+    """
+
+    skeleton: Skeleton
+    figure: CharacterFigure
+    base: Pose
+    _gene_bone: np.ndarray = field(init=False, repr=False)
+    _gene_col: np.ndarray = field(init=False, repr=False)
+    _gene_index: np.ndarray = field(init=False, repr=False)
+    _desc: np.ndarray = field(init=False, repr=False)
+    _root_carry: np.ndarray = field(init=False, repr=False)
+    _root_hcarry: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        """Flatten the groups into per-(bone, gene) entries and cache descendant masks."""
+        sk, fig = self.skeleton, self.figure
+        bone, col, gene = [], [], []
+        start = N_ROOT_GENES
+        for grp in fig.groups:
+            m = grp.bounds.shape[0]
+            for j, b in enumerate(grp.bones):
+                for c in range(m):
+                    bone.append((int(b), j, grp))
+                    col.append(c)
+                    gene.append(start + c)
+            start += m
+        object.__setattr__(self, "_gene_bone", np.array([b for b, _, _ in bone], int))
+        object.__setattr__(self, "_gene_col", np.array(col, int))
+        object.__setattr__(self, "_gene_index", np.array(gene, int))
+        desc = np.zeros((sk.n_bones, sk.n_bones), bool)
+        for i in range(sk.n_bones):
+            desc[i, sk.descendants(i)] = True
+        object.__setattr__(self, "_desc", desc)
+        state = sk.forward(self.base)
+        r = fig.root_bone
+        object.__setattr__(self, "_root_carry", sk.parent_carry(r, state))
+        p = sk.parents[r]
+        hc = np.eye(3) if p < 0 else state.frames[p] @ sk.rest_frames[p].T
+        object.__setattr__(self, "_root_hcarry", hc)
+
+    @property
+    def n_genes(self) -> int:
+        """Length of the gene vector."""
+        return N_ROOT_GENES + sum(g.bounds.shape[0] for g in self.figure.groups)
+
+    def bounds(self, root_center: np.ndarray, root_range: float) -> np.ndarray:
+        """Gene bounds, shape ``(G, 2)``: the root within ``root_range`` of ``root_center``.
+
+        Args:
+            root_center: World offset of the root from its base position, shape ``(3,)``.
+            root_range: Half-width of the translation box, world units.
+        """
+        c = np.asarray(root_center, float)
+        rows = [np.stack([c - root_range, c + root_range], 1),
+                np.tile([-np.pi, np.pi], (3, 1))]
+        rows += [g.bounds for g in self.figure.groups]
+        return np.concatenate(rows)
+
+    def local_rotations(self, genes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Local rotations and the exp-map arguments of the group bones.
+
+        Args:
+            genes: Gene vectors, shape ``(P, G)``.
+
+        Returns:
+            ``(Q, phi)``: local rotations ``(P, n, 3, 3)`` and per group bone the rotation
+            vectors ``phi = B g / k`` in group order, ``(P, n_entries, 3)``.
+        """
+        x = np.atleast_2d(genes)
+        P = x.shape[0]
+        Q = np.broadcast_to(self.base.rotations, (P,) + self.base.rotations.shape).copy()
+        start, phis = N_ROOT_GENES, []
+        for grp in self.figure.groups:
+            m, k = grp.bounds.shape[0], len(grp.bones)
+            g = x[:, start:start + m]
+            phi = np.einsum("kij,pj->pki", grp.bases, g) / k
+            Q[:, grp.bones] = Q[:, grp.bones] @ exp_map(phi)
+            phis.append(phi)
+            start += m
+        C = self._root_carry
+        G = exp_map(x[:, 3:6])
+        r = self.figure.root_bone
+        Q[:, r] = C.T @ G @ C @ self.base.rotations[r]
+        return Q, np.concatenate(phis, 1) if phis else np.zeros((P, 0, 3))
+
+    def forward(self, genes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Posed heads, tails and frames of every bone for a population.
+
+        Args:
+            genes: Gene vectors, shape ``(P, G)``.
+
+        Returns:
+            ``(heads (P, n, 3), tails (P, n, 3), frames (P, n, 3, 3))`` in world space.
+        """
+        sk = self.skeleton
+        x = np.atleast_2d(genes)
+        P, n = x.shape[0], sk.n_bones
+        Q, _ = self.local_rotations(x)
+        rest = sk.rest_frames
+        local = rest @ Q
+        t = np.broadcast_to(self.base.translations, (P, n, 3)).copy()
+        r = self.figure.root_bone
+        t[:, r] += x[:, :3] @ self._root_hcarry @ rest[r]
+        offset = np.einsum("nij,pnj->pni", rest, t)
+        frames = np.empty((P, n, 3, 3))
+        heads = np.empty((P, n, 3))
+        for level in sk._levels:
+            par = sk.parents[level]
+            root = par < 0
+            ri, ci, cp = level[root], level[~root], par[~root]
+            frames[:, ri] = local[:, ri]
+            heads[:, ri] = sk.rest_heads[ri] + offset[:, ri]
+            if ci.size:
+                carry = frames[:, cp] @ np.swapaxes(rest[cp], 1, 2)
+                inherit = sk.inherit_rotation[ci][:, None, None]
+                frames[:, ci] = np.where(inherit, carry @ local[:, ci], local[:, ci])
+                rel = sk.rest_heads[ci] - sk.rest_heads[cp] + offset[:, ci]
+                heads[:, ci] = heads[:, cp] + np.einsum("pnij,pnj->pni", carry, rel)
+        tails = heads + frames[..., 1] * sk.lengths[:, None]
+        return heads, tails, frames
+
+    def jacobian(self, genes: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Heads, tails and their analytic Jacobians for one gene vector.
+
+        Args:
+            genes: Gene vector, shape ``(G,)``.
+
+        Returns:
+            ``(heads (n, 3), tails (n, 3), J_heads (n, 3, G), J_tails (n, 3, G))``.
+        """
+        x = np.asarray(genes, float)
+        heads, tails, frames = (a[0] for a in self.forward(x[None]))
+        _, phi = self.local_rotations(x[None])
+        phi = phi[0]
+        n, G = self.skeleton.n_bones, x.size
+        # World axis of every (bone, gene) entry, in group order.
+        axes = np.empty((len(self._gene_bone), 3))
+        row, prow = 0, 0
+        for grp in self.figure.groups:
+            m, k = grp.bounds.shape[0], len(grp.bones)
+            w = frames[grp.bones] @ right_jacobian(phi[prow:prow + k]) @ grp.bases / k
+            axes[row:row + k * m] = np.swapaxes(w, 1, 2).reshape(k * m, 3)
+            row += k * m
+            prow += k
+        pivots = heads[self._gene_bone]
+        r = self.figure.root_bone
+        # Root: dG = [J_l e_k]_x G with J_l = J_r^T, so the axes are the rows of J_r.
+        all_axes = np.concatenate([right_jacobian(x[3:6]), axes])
+        all_piv = np.concatenate([np.tile(heads[r], (3, 1)), pivots])
+        all_bone = np.concatenate([[r, r, r], self._gene_bone])
+        all_gene = np.concatenate([[3, 4, 5], self._gene_index])
+        out = []
+        for pts in (heads, tails):
+            mask = self._desc[all_bone]  # (E, n)
+            mov = np.cross(all_axes[:, None, :], pts[None] - all_piv[:, None, :])
+            mov *= mask[..., None]
+            J = np.zeros((G, n, 3))
+            np.add.at(J, all_gene, mov)
+            J[:3] = np.eye(3)[:, None, :]
+            out.append(np.transpose(J, (1, 2, 0)))
+        return heads, tails, out[0], out[1]
+
+    def to_pose(self, genes: np.ndarray) -> Pose:
+        """The :class:`Pose` of one gene vector (shape ``(G,)``)."""
+        x = np.asarray(genes, float)
+        Q, _ = self.local_rotations(x[None])
+        t = self.base.translations.copy()
+        r = self.figure.root_bone
+        t[r] += x[:3] @ self._root_hcarry @ self.skeleton.rest_frames[r]
+        return Pose(Q[0], t)

@@ -1,0 +1,143 @@
+"""The humanoid stick model and the population forward kinematics with its Jacobian.
+
+Also provides :func:`humanoid_skeleton`, a 24-bone core skeleton shaped like the sample
+humanoid, for the other stick tests.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gesture_pose.core.exceptions import InputError
+from gesture_pose.core.skeleton import Pose, Skeleton
+from gesture_pose.core.stick.figure import bone_side, find_humanoid_bones, humanoid_figure
+from gesture_pose.core.stick.kinematics import PoseModel, right_jacobian
+from tests.core.fixtures import chain_skeleton, frame_along
+
+
+def humanoid_skeleton() -> Skeleton:
+    """A 1.8 m humanoid facing -Y (left is +X), arms in an A-pose, parents first."""
+    bones: list[tuple[str, str | None, tuple, tuple]] = [
+        ("pelvis", None, (0, 0, 0.93), (0, -0.01, 1.04)),
+        ("spine", "pelvis", (0, -0.01, 1.04), (0, 0, 1.16)),
+        ("spine.001", "spine", (0, 0, 1.16), (0, 0.01, 1.28)),
+        ("chest", "spine.001", (0, 0.01, 1.28), (0, 0, 1.45)),
+        ("neck", "chest", (0, 0, 1.45), (0, -0.01, 1.56)),
+        ("head", "neck", (0, -0.01, 1.56), (0, -0.02, 1.72)),
+    ]
+    c, s = np.cos(np.radians(40)), np.sin(np.radians(40))
+    for side, sx in (("L", 1.0), ("R", -1.0)):
+        sh = np.array([0.18 * sx, 0.01, 1.43])
+        el = sh + [0.29 * c * sx, 0.025, -0.29 * s]
+        wr = el + [0.26 * c * sx, -0.03, -0.26 * s]
+        kn = wr + [0.09 * c * sx, -0.005, -0.09 * s]
+        hip, knee, ank = (0.10 * sx, 0, 0.93), (0.11 * sx, -0.025, 0.51), (0.12 * sx, 0.02, 0.09)
+        ball = (0.125 * sx, -0.10, 0.025)
+        bones += [
+            (f"shoulder.{side}", "chest", (0.03 * sx, 0, 1.42), tuple(sh)),
+            (f"upper_arm.{side}", f"shoulder.{side}", tuple(sh), tuple(el)),
+            (f"forearm.{side}", f"upper_arm.{side}", tuple(el), tuple(wr)),
+            (f"hand.{side}", f"forearm.{side}", tuple(wr), tuple(kn)),
+            (f"thigh.{side}", "pelvis", hip, knee),
+            (f"shin.{side}", f"thigh.{side}", knee, ank),
+            (f"foot.{side}", f"shin.{side}", ank, ball),
+        ]
+    order = {n: i for i, (n, *_) in enumerate(bones)}
+    heads = np.array([b[2] for b in bones], float)
+    tails = np.array([b[3] for b in bones], float)
+    n = len(bones)
+    frames = np.stack([frame_along(t - h, 0.1 * i)
+                       for i, (h, t) in enumerate(zip(heads, tails, strict=True))])
+    return Skeleton(
+        names=tuple(b[0] for b in bones),
+        parents=np.array([order[b[1]] if b[1] else -1 for b in bones]),
+        rest_heads=heads, rest_tails=tails, rest_frames=frames,
+        inherit_rotation=np.ones(n, bool), connected=np.zeros(n, bool), deform=np.ones(n, bool))
+
+
+def test_side_markers():
+    for name, side in [("upper_arm.L", "L"), ("thigh_R", "R"), ("LeftForeArm", "L"),
+                       ("RightUpLeg", "R"), ("l_hand", "L"), ("Hips", ""), ("Neck1", ""),
+                       ("leg_joint_R_1", "")]:
+        assert bone_side(name) == side, name
+
+
+def test_humanoid_roles_by_name():
+    sk = humanoid_skeleton()
+    b = find_humanoid_bones(sk)
+    assert sk.names[b["pelvis"]] == "pelvis"
+    assert sk.names[b["forearm.R"]] == "forearm.R"
+    assert sk.names[b["shin.L"]] == "shin.L"
+    fig = humanoid_figure(sk)
+    assert np.allclose(fig.forward, [0.0, -1.0, 0.0], atol=0.05)
+    heads, tails = sk.rest_heads, sk.rest_tails
+    pos = fig.joint_positions(heads, tails)
+    assert np.allclose(pos[fig.joint("elbow.L")], heads[sk.index("forearm.L")])
+    assert np.allclose(pos[fig.joint("head")], tails[sk.index("head")])
+    assert fig.edges().shape == (14, 2)
+    spine = next(g for g in fig.groups if g.name == "spine")
+    assert [sk.names[i] for i in spine.bones] == ["spine", "spine.001", "chest"]
+
+
+def test_not_a_humanoid_says_what_is_missing():
+    sk = chain_skeleton(np.array([[0, 0, 0], [0, 0, 1], [0, 0, 2.0]]))
+    with pytest.raises(InputError, match="not recognised as a humanoid"):
+        find_humanoid_bones(sk)
+
+
+def test_hinges_flex_the_right_way():
+    sk = humanoid_skeleton()
+    fig = humanoid_figure(sk)
+    model = PoseModel(sk, fig, Pose.identity(sk.n_bones))
+    x = np.zeros(model.n_genes)
+    start = 6
+    for g in fig.groups:
+        if g.name == "shin.L":
+            x[start] = np.radians(90)
+        start += g.bounds.shape[0]
+    heads, tails, _ = model.forward(x[None])
+    ank = heads[0, sk.index("foot.L")]
+    knee = heads[0, sk.index("shin.L")]
+    # A flexed knee sends the ankle behind the knee (+Y, the character faces -Y).
+    assert ank[1] - knee[1] > 0.35
+
+
+def test_population_fk_matches_skeleton_forward():
+    sk = humanoid_skeleton()
+    model = PoseModel(sk, humanoid_figure(sk), Pose.identity(sk.n_bones))
+    rng = np.random.default_rng(3)
+    x = rng.normal(scale=0.4, size=(5, model.n_genes))
+    heads, tails, _ = model.forward(x)
+    for p in range(5):
+        state = sk.forward(model.to_pose(x[p]))
+        assert np.allclose(state.heads, heads[p], atol=1e-12)
+        assert np.allclose(state.tails, tails[p], atol=1e-12)
+    assert np.allclose(heads[:, sk.index("pelvis")], sk.rest_heads[0] + x[:, :3])
+
+
+def test_right_jacobian_against_finite_differences():
+    rng = np.random.default_rng(0)
+    from gesture_pose.core.rotations import exp_map, log_map
+    for phi in [rng.normal(size=3), np.array([1e-8, 0, 0]), rng.normal(size=3) * 2.5]:
+        R = exp_map(phi)
+        for k in range(3):
+            d = np.zeros(3)
+            d[k] = 1e-6
+            num = log_map(R.T @ exp_map(phi + d)) / 1e-6
+            assert np.allclose(num, right_jacobian(phi)[:, k], atol=1e-5)
+
+
+def test_pose_jacobian_against_finite_differences():
+    sk = humanoid_skeleton()
+    model = PoseModel(sk, humanoid_figure(sk), Pose.identity(sk.n_bones))
+    rng = np.random.default_rng(7)
+    x = rng.normal(scale=0.5, size=model.n_genes)
+    heads, tails, Jh, Jt = model.jacobian(x)
+    h = 1e-6
+    X = np.concatenate([x + h * np.eye(x.size), x - h * np.eye(x.size)])
+    H, T, _ = model.forward(X)
+    num_h = (H[: x.size] - H[x.size:]) / (2 * h)
+    num_t = (T[: x.size] - T[x.size:]) / (2 * h)
+    assert np.allclose(np.transpose(num_h, (1, 2, 0)), Jh, atol=1e-6)
+    assert np.allclose(np.transpose(num_t, (1, 2, 0)), Jt, atol=1e-6)
