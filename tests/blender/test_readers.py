@@ -452,3 +452,110 @@ def test_no_skinned_mesh_is_an_input_error(bpy_blank):
     rig = build_armature(CHAIN)
     with pytest.raises(InputError, match="No mesh is deformed"):
         read_skinned_meshes(rig, read_armature(rig).skeleton)
+
+
+# ----------------------------------------------------------------------------- operators
+
+
+def test_settings_and_panel_are_registered(registered):
+    from gesture_pose.blender.panel import VIEW3D_PT_gesture_pose
+    from gesture_pose.blender.properties import _is_armature, _is_sketch
+
+    assert VIEW3D_PT_gesture_pose.is_registered
+    settings = bpy.context.scene.gesture_pose
+    assert settings.armature is None and settings.sketch is None
+    rig = build_armature(CHAIN)
+    sketch = add_grease_pencil([np.zeros((2, 3))])
+    settings.armature, settings.sketch = rig, sketch
+    assert (settings.armature, settings.sketch) == (rig, sketch)
+    assert _is_armature(settings, rig) and not _is_armature(settings, sketch)
+    assert _is_sketch(settings, sketch) and not _is_sketch(settings, rig)
+
+
+def test_resolve_armature_order(registered):
+    from gesture_pose.blender.operator_utils import resolve_armature
+
+    ctx = bpy.context
+    with pytest.raises(InputError, match="No armature"):
+        resolve_armature(ctx)
+    a = build_armature(CHAIN, name="A")
+    b = build_armature(CHAIN, name="B")
+    sketch = add_grease_pencil([np.zeros((2, 3))])
+    with ctx.temp_override(active_object=sketch, selected_objects=[sketch, b]):
+        assert resolve_armature(bpy.context) == b
+    with ctx.temp_override(active_object=sketch, selected_objects=[a, b]):
+        with pytest.raises(InputError, match="No armature"):
+            resolve_armature(bpy.context)
+    with ctx.temp_override(active_object=a, selected_objects=[a, b]):
+        assert resolve_armature(bpy.context) == a
+        ctx.scene.gesture_pose.armature = b
+        assert resolve_armature(bpy.context) == b
+        assert resolve_armature(bpy.context, "A") == a
+        with pytest.raises(InputError, match="must be an armature"):
+            resolve_armature(bpy.context, sketch.name)
+        with pytest.raises(InputError, match="No object named"):
+            resolve_armature(bpy.context, "Missing")
+
+
+def test_resolve_sketch_order(registered):
+    from gesture_pose.blender.operator_utils import resolve_sketch
+
+    ctx = bpy.context
+    rig = build_armature(CHAIN)
+    with pytest.raises(InputError, match="No sketch"):
+        resolve_sketch(ctx)
+    first = add_grease_pencil([np.zeros((2, 3))], name="First")
+    assert resolve_sketch(ctx) == first  # the only one in the scene
+    second = add_grease_pencil([np.zeros((2, 3))], name="Second")
+    with ctx.temp_override(active_object=rig, selected_objects=[rig]):
+        with pytest.raises(InputError, match="2 Grease Pencil objects"):
+            resolve_sketch(bpy.context)
+        second.parent = rig
+        assert resolve_sketch(bpy.context, armature=rig) == second
+    with ctx.temp_override(active_object=rig, selected_objects=[rig, first]):
+        assert resolve_sketch(bpy.context) == first
+    with ctx.temp_override(active_object=second, selected_objects=[first]):
+        assert resolve_sketch(bpy.context) == second
+        ctx.scene.gesture_pose.sketch = first
+        assert resolve_sketch(bpy.context) == first
+    curve = link(bpy.data.objects.new("Curve", bpy.data.curves.new("Curve", "CURVE")))
+    assert resolve_sketch(ctx, "Curve") == curve
+    with pytest.raises(InputError, match="must be a Grease Pencil or curve"):
+        resolve_sketch(ctx, rig.name)
+
+
+def test_operator_mixin_reports_errors_and_changes_nothing(registered, capsys):
+    from gesture_pose.blender.operator_utils import (
+        GesturePoseOperatorMixin,
+        nothing_to_do,
+        report_result,
+        resolve_armature,
+    )
+
+    class GESTUREPOSE_OT_test_rename(GesturePoseOperatorMixin, bpy.types.Operator):
+        bl_idname = "gesture_pose.test_rename"
+        bl_label = "Test Rename"
+        mode: bpy.props.StringProperty()
+
+        def run(self, context):
+            rig = resolve_armature(context)
+            if self.mode == "skip":
+                return nothing_to_do(self, "no strokes")
+            rig.name = "Renamed"
+            report_result(self, "renamed")
+            return {"FINISHED"}
+
+    bpy.utils.register_class(GESTUREPOSE_OT_test_rename)
+    try:
+        with pytest.raises(RuntimeError, match="No armature: select"):
+            bpy.ops.gesture_pose.test_rename()
+        rig = build_armature(CHAIN)
+        with bpy.context.temp_override(active_object=rig, selected_objects=[rig]):
+            assert bpy.ops.gesture_pose.test_rename(mode="skip") == {"CANCELLED"}
+            assert rig.name == "Rig"
+            assert bpy.ops.gesture_pose.test_rename() == {"FINISHED"}
+        assert rig.name == "Renamed"
+        out = capsys.readouterr().out
+        assert "Nothing to do: no strokes" in out and "renamed" in out
+    finally:
+        bpy.utils.unregister_class(GESTUREPOSE_OT_test_rename)
