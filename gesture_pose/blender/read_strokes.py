@@ -22,6 +22,9 @@ from ..core.stroke import Stroke
 
 #: Blender's radius of a Grease Pencil point when the drawing has no radius attribute.
 DEFAULT_RADIUS = 0.01
+#: Values of Grease Pencil attributes for new strokes when the drawing already has them.
+NEW_STROKE_DEFAULTS = {"radius": DEFAULT_RADIUS, "opacity": 1.0, "hardness": 1.0,
+                       "aspect_ratio": 1.0, "u_scale": 1.0}
 #: Name of the material :func:`write_strokes` creates when a sketch has none.
 OVERLAY_MATERIAL = "gesture_pose ink"
 
@@ -284,18 +287,32 @@ def _material_index(sketch_obj, material, color) -> int:
     return len(gp.materials) - 1
 
 
-def _set_attribute(drawing, name: str, kind: str, domain: str, values: np.ndarray,
-                   start: int, old_fill: float) -> None:
-    """Write ``values`` into ``drawing`` attribute ``name`` from element ``start`` on."""
+def _fill_new(drawing, name: str, value: float, starts: dict[str, int],
+              create: tuple[str, str, float] | None = None) -> None:
+    """Set attribute ``name`` of the elements added last to ``value``.
+
+    Args:
+        drawing: The drawing.
+        name: Scalar (FLOAT or INT) attribute name.
+        value: Value for the new points or strokes.
+        starts: First new element per domain (``'POINT'``, ``'CURVE'``).
+        create: ``(data_type, domain, value for old elements)`` to create a missing
+            attribute; a missing attribute is left alone when None.
+    """
     attr = drawing.attributes.get(name)
     created = attr is None
     if created:
-        attr = drawing.attributes.new(name, kind, domain)
-    data = np.empty(len(attr.data), dtype=np.int32 if kind == "INT" else np.float32)
+        if create is None:
+            return
+        attr = drawing.attributes.new(name, create[0], create[1])
+    if attr.data_type not in {"FLOAT", "INT"}:
+        return
+    data = np.empty(len(attr.data), dtype=np.int32 if attr.data_type == "INT" else np.float32)
     attr.data.foreach_get("value", data)
+    start = starts[attr.domain]
     if created:
-        data[:start] = old_fill
-    data[start:] = values
+        data[:start] = create[2]
+    data[start:] = value
     attr.data.foreach_set("value", data)
 
 
@@ -343,9 +360,12 @@ def write_strokes(sketch_obj: bpy.types.Object, layer_name: str,
     new_pos = _transform(np.concatenate(lines), to_local)
     drawing.attributes["position"].data.foreach_set(
         "vector", np.concatenate([old_pos, new_pos]).astype(np.float32).ravel())
+    starts = {"POINT": len(old_pos), "CURVE": n_strokes_old}
+    # Existing attributes give new elements 0: a radius or opacity of 0 hides the stroke.
+    for name, value in NEW_STROKE_DEFAULTS.items():
+        _fill_new(drawing, name, value, starts)
     if radius is not None:
-        _set_attribute(drawing, "radius", "FLOAT", "POINT", np.float32(radius), len(old_pos),
-                       DEFAULT_RADIUS)
-    if mat_index or drawing.attributes.get("material_index") is not None:
-        _set_attribute(drawing, "material_index", "INT", "CURVE", mat_index, n_strokes_old, 0)
+        _fill_new(drawing, "radius", radius, starts, ("FLOAT", "POINT", DEFAULT_RADIUS))
+    _fill_new(drawing, "material_index", mat_index, starts,
+              ("INT", "CURVE", 0) if mat_index else None)
     return layer

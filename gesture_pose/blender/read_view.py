@@ -67,15 +67,21 @@ def camera_from_region(region, rv3d) -> Camera:
 
 
 def _view3d_region(context):
-    """``(region, rv3d)`` of the context's 3D View, or ``(None, None)``."""
+    """``(region, rv3d)`` of the context's 3D View, or ``(None, None)``.
+
+    From the sidebar (region type ``'UI'``) the view is the area's main ``'WINDOW'`` region
+    and the space's ``region_3d``.
+    """
     area = getattr(context, "area", None)
     if area is None or area.type != "VIEW_3D":
         return None, None
-    region = context.region
-    if region is None or region.type != "WINDOW":
-        region = next((r for r in area.regions if r.type == "WINDOW"), None)
-    rv3d = getattr(context, "region_data", None) or area.spaces.active.region_3d
-    return region, rv3d
+    region = getattr(context, "region", None)
+    if region is not None and region.type == "WINDOW" and context.region_data is not None:
+        return region, context.region_data
+    windows = [r for r in area.regions if r.type == "WINDOW"]
+    if not windows:
+        return None, None
+    return max(windows, key=lambda r: r.width * r.height), area.spaces.active.region_3d
 
 
 def camera_from_context(context) -> Camera:

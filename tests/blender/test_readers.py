@@ -170,8 +170,8 @@ def test_camera_from_object_matches_world_to_camera_view(bpy_blank, ortho):
 
 
 class _Region:
-    def __init__(self, width, height):
-        self.width, self.height = width, height
+    def __init__(self, width, height, kind="WINDOW"):
+        self.width, self.height, self.type = width, height, kind
 
 
 class _RegionView3D:
@@ -273,13 +273,22 @@ def test_data_api_strokes_and_append(bpy_blank):
     ink = bpy.data.materials.new("Ink")
     bpy.data.materials.create_gpencil_data(ink)
     obj.data.materials.append(ink)
+    drawing = obj.data.layers["Lines"].current_frame().drawing
+    n_old = sum(len(p) for p in first)
+    for name in ("radius", "opacity"):
+        attr = drawing.attributes.new(name, "FLOAT", "POINT")
+        attr.data.foreach_set("value", np.full(n_old, 0.3, dtype=np.float32))
     write_strokes(obj, "Lines", extra, frame=1, replace=False, color=(1.0, 0.2, 0.1))
     out = read_sketch(obj)
     assert len(out) == 3
+    np.testing.assert_allclose(out[0].radius, 0.3, atol=1e-7)
+    np.testing.assert_allclose(out[2].radius, 0.01, atol=1e-7)
+    opacity = np.empty(n_old + len(extra[0]), dtype=np.float32)
+    drawing.attributes["opacity"].data.foreach_get("value", opacity)
+    np.testing.assert_allclose(opacity, np.r_[np.full(n_old, 0.3), np.ones(len(extra[0]))])
     for s, p in zip(out, first + extra, strict=True):
         np.testing.assert_allclose(s.points_world, p, atol=1e-5)
     index = np.empty(3, dtype=np.int32)
-    drawing = obj.data.layers["Lines"].current_frame().drawing
     drawing.attributes["material_index"].data.foreach_get("value", index)
     assert index.tolist() == [0, 0, 1]
     assert obj.data.materials[1].grease_pencil.color[:] == pytest.approx((1.0, 0.2, 0.1, 1.0))
@@ -559,3 +568,21 @@ def test_operator_mixin_reports_errors_and_changes_nothing(registered, capsys):
         assert "Nothing to do: no strokes" in out and "renamed" in out
     finally:
         bpy.utils.unregister_class(GESTUREPOSE_OT_test_rename)
+
+
+def test_camera_from_context_uses_the_3d_view(bpy_blank):
+    from types import SimpleNamespace
+
+    cam = add_camera((0.0, -6.0, 1.0), (0.0, 0.0, 1.0))
+    window = cam.calc_matrix_camera(bpy.context.evaluated_depsgraph_get(), x=400, y=300)
+    rv3d = _RegionView3D(cam.matrix_world.normalized().inverted(), window, True)
+    main, sidebar = _Region(400, 300), _Region(80, 300, "UI")
+    area = SimpleNamespace(type="VIEW_3D", regions=[sidebar, _Region(10, 10), main],
+                           spaces=SimpleNamespace(active=SimpleNamespace(region_3d=rv3d)))
+    scene = bpy.context.scene
+    scene.render.resolution_x, scene.render.resolution_y = 1000, 1000
+    for region, data in ((main, rv3d), (sidebar, None)):
+        ctx = SimpleNamespace(area=area, region=region, region_data=data, scene=scene)
+        camera = camera_from_context(ctx)
+        assert (camera.width, camera.height) == (400, 300)
+        np.testing.assert_allclose(camera.projection_matrix, np.array(window), atol=1e-7)
