@@ -194,11 +194,9 @@ def read_armature(arm_obj: bpy.types.Object) -> ArmatureData:
                          f"'{arm_obj.name}': give them a length in Edit Mode.")
     rest_frames = rot_o @ orthonormalize(local[:, :3, :3])
 
-    flag = {name: i for i, name in enumerate(blender_names)}
-    blender_order = np.array([flag[n] for n in names])
-    inherit = _bulk(bones, "use_inherit_rotation", 1, bool)[blender_order, 0]
-    connected = _bulk(bones, "use_connect", 1, bool)[blender_order, 0]
-    deform = _bulk(bones, "use_deform", 1, bool)[blender_order, 0]
+    inherit = _bulk(bones, "use_inherit_rotation", 1, bool)[order, 0]
+    connected = _bulk(bones, "use_connect", 1, bool)[order, 0]
+    deform = _bulk(bones, "use_deform", 1, bool)[order, 0]
     skeleton = Skeleton(names, parents, heads_w, tails_w, rest_frames, inherit, connected,
                         deform)
 

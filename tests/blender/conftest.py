@@ -22,7 +22,7 @@ BoneRow = tuple[str, Sequence[float], Sequence[float], str | None, bool, float]
 
 def pytest_collection_modifyitems(config, items) -> None:
     for item in items:
-        if _HERE in Path(str(item.fspath)).resolve().parents:
+        if _HERE in Path(item.path).resolve().parents:
             item.add_marker(pytest.mark.blender)
 
 

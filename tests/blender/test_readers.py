@@ -140,6 +140,11 @@ def test_rejects_bad_objects(two_root_rig):
     bpy.context.view_layer.update()
     with pytest.raises(InputError, match="mirrored"):
         read_armature(two_root_rig)
+    two_root_rig.scale = (1.0, 1.0, 1.0)
+    two_root_rig.location = (float("nan"), 0.0, 0.0)
+    bpy.context.view_layer.update()
+    with pytest.raises(InputError, match="NaN"):
+        read_armature(two_root_rig)
     empty = link(bpy.data.objects.new("Empty", None))
     with pytest.raises(InputError, match="armature"):
         read_armature(empty)
