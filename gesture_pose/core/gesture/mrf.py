@@ -13,6 +13,10 @@ of ``j``'s subtree given ``x_p = a`` and ``x_j = b``::
 
 (``T_c`` is zero when ``c`` has no triplet). Every step is a vectorized numpy reduction;
 the cost is ``O(sum K_p K_j K_c)`` over triplets.
+
+:class:`MatchProblem` holds the data of ``E_match`` for one drawing and solving skeleton;
+:func:`build_energy` turns candidate sets into the factor tables, and :func:`joint_energy`
+evaluates the same energy for joints at arbitrary positions (consistency, refinement).
 """
 
 from __future__ import annotations
@@ -22,6 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..exceptions import InputError
+from .candidates import JointCandidates
+from .costs import CostParams, pair_cost, rigid_cost, triplet_cost, unary_cost
+from .preprocess import Drawing
+from .types import SolvingSkeleton
 
 
 @dataclass(frozen=True)
@@ -118,3 +126,122 @@ def solve_tree(energy: TreeEnergy) -> tuple[np.ndarray, float]:
             a = labels[par[j]] if par[j] >= 0 else 0
             labels[c] = int(arg[c][a, labels[j]])
     return labels, total
+
+
+@dataclass(frozen=True)
+class MatchProblem:
+    """Data of the 2D matching energy.
+
+    Attributes:
+        drawing: The preprocessed drawing.
+        solving: The solving skeleton.
+        link_length: Expected drawn length of each joint's link to its parent (bone length
+            or rigid offset times the view scale), pixels, ``(J,)``; 0 for roots.
+        rest_angle: Bind-pose angle between a joint's link and its parent's link, radians,
+            ``(J,)``; NaN where there is no triplet.
+        terminal: Terminal joints, ``(J,)`` bool.
+        params: Cost parameters.
+    """
+
+    drawing: Drawing
+    solving: SolvingSkeleton
+    link_length: np.ndarray
+    rest_angle: np.ndarray
+    terminal: np.ndarray
+    params: CostParams
+
+    def has_triplet(self, j: int) -> bool:
+        """Whether joint ``j`` closes a triplet (two consecutive bone links)."""
+        return bool(np.isfinite(self.rest_angle[j]))
+
+
+def make_problem(drawing: Drawing, solving: SolvingSkeleton, pixels_per_unit: float,
+                 params: CostParams | None = None) -> MatchProblem:
+    """Expected lengths and bind angles of the joint tree, scaled to the drawing."""
+    params = params or CostParams()
+    par = solving.joint_parent
+    rest = solving.rest_joints
+    n = solving.n_joints
+    length = np.zeros(n)
+    has = par >= 0
+    length[has] = np.linalg.norm(rest[has] - rest[par[has]], axis=1) * pixels_per_unit
+    angle = np.full(n, np.nan)
+    for j in np.flatnonzero(has):
+        p = par[j]
+        if solving.joint_link_bone[j] >= 0 and par[p] >= 0 and solving.joint_link_bone[p] >= 0:
+            d1, d2 = rest[p] - rest[par[p]], rest[j] - rest[p]
+            c = d1 @ d2 / max(np.linalg.norm(d1) * np.linalg.norm(d2), 1e-12)
+            angle[j] = float(np.arccos(np.clip(c, -1.0, 1.0)))
+    return MatchProblem(drawing, solving, length, angle, solving.terminal, params)
+
+
+def link_table(problem: MatchProblem, j: int, a: JointCandidates,
+               b: JointCandidates) -> np.ndarray:
+    """Pairwise table between parent candidates ``a`` and joint ``j``'s candidates ``b``."""
+    if problem.solving.joint_link_bone[j] < 0:
+        return rigid_cost(problem.drawing, a.positions, b.positions, problem.link_length[j],
+                          problem.params)
+    return pair_cost(problem.drawing, a.positions, a.radii, a.group, a.side, b.positions,
+                     b.radii, b.group, b.side, problem.link_length[j], problem.params)
+
+
+def triplet_table(problem: MatchProblem, j: int, g: JointCandidates, p: JointCandidates,
+                  c: JointCandidates) -> np.ndarray:
+    """Naturalness table of grandparent, parent and joint ``j`` candidates."""
+    gg, gp, gc = g.group[:, None, None], p.group[None, :, None], c.group[None, None, :]
+    shared = (gg == gp) & (gp == gc) & (gc >= 0)
+    return triplet_cost(g.positions, p.positions, c.positions, shared,
+                        float(problem.rest_angle[j]), problem.params)
+
+
+def build_energy(problem: MatchProblem, cands: list[JointCandidates]) -> TreeEnergy:
+    """Factor tables of ``E_match`` over the candidate sets (Eq. 4)."""
+    par = problem.solving.joint_parent
+    unary = tuple(c.unary for c in cands)
+    pair, trip = [], []
+    for j in range(problem.solving.n_joints):
+        p = par[j]
+        pair.append(None if p < 0 else link_table(problem, j, cands[p], cands[j]))
+        trip.append(triplet_table(problem, j, cands[par[p]], cands[p], cands[j])
+                    if p >= 0 and problem.has_triplet(j) else None)
+    return TreeEnergy(par, unary, tuple(pair), tuple(trip))
+
+
+def configuration(cands: list[JointCandidates], labels: np.ndarray) -> JointCandidates:
+    """One candidate per joint as a single candidate set (joint order), ``K = J``."""
+    picks = [c.take(np.array([k])) for c, k in zip(cands, labels, strict=True)]
+    return JointCandidates.concat(picks)
+
+
+def joint_energy(problem: MatchProblem, conf: JointCandidates,
+                 joints: np.ndarray | None = None) -> tuple[float, dict]:
+    """``E_match`` of the factors touching ``joints`` (all factors when None).
+
+    Args:
+        problem: The matching problem.
+        conf: One placement per joint (see :func:`configuration`).
+        joints: Joints whose factors are summed, or None for the whole energy.
+
+    Returns:
+        ``(energy, terms)`` with terms ``"unary"``, ``"pairwise"``, ``"triplet"``.
+    """
+    s = problem.solving
+    par = s.joint_parent
+    n = s.n_joints
+    sel = np.ones(n, bool) if joints is None else np.isin(np.arange(n), joints)
+    terms = {"unary": 0.0, "pairwise": 0.0, "triplet": 0.0}
+    for j in np.flatnonzero(sel):
+        cost, _ = unary_cost(problem.drawing, conf.positions[j:j + 1], conf.radii[j:j + 1],
+                             bool(problem.terminal[j]), problem.params)
+        terms["unary"] += float(cost[0])
+    one = [conf.take(np.array([j])) for j in range(n)]
+    for j in range(n):
+        p = par[j]
+        if p < 0:
+            continue
+        g = par[p]
+        if sel[j] or sel[p]:
+            terms["pairwise"] += float(link_table(problem, j, one[p], one[j])[0, 0])
+        if problem.has_triplet(j) and (sel[j] or sel[p] or sel[g]):
+            terms["triplet"] += float(triplet_table(problem, j, one[g], one[p], one[j])[0, 0, 0])
+    return sum(terms.values()), terms

@@ -1,0 +1,234 @@
+"""Top level of the 2D skeletal embedding (Gesture3D Sections 4-6).
+
+:func:`fit_drawing` runs the whole pipeline: preprocessing, solving skeleton, joint radii,
+candidates, the exact tree MRF (twice: a coarse occlusion grid first, then a fine grid at
+epsilon around the first answer), global consistency with terminal enumeration and
+symmetric permutations, and the 2D refinement.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..camera import Camera
+from ..exceptions import InputError
+from ..skeleton import Pose, Skeleton
+from ..stroke import Stroke
+from .candidates import JointCandidates, contour_candidates, grid_candidates
+from .consistency import assign_contours, overlap_joints, permute, symmetric_limbs, twist_score
+from .costs import CostParams
+from .mrf import build_energy, configuration, joint_energy, make_problem, solve_tree
+from .preprocess import PreprocessParams, preprocess
+from .radii import discrete_radii, joint_radii
+from .refine import RefineParams, refine
+from .solving import solving_skeleton
+from .types import Embedding2D, SolvingSkeleton
+
+
+@dataclass(frozen=True)
+class GestureParams:
+    """Parameters of the 2D embedding (the paper's values are the defaults).
+
+    Attributes:
+        preprocess: Resampling and Gestalt-bridge parameters.
+        costs: Cost parameters.
+        refine: Refinement parameters.
+        min_bone_epsilons: Shortest solving bone, in resampling steps.
+        max_candidates: Contour candidates kept per joint.
+        coarse_grid: Grid points of the first (coarse) occlusion grid.
+        fine_grid_reach: Half-width of the fine grid around the first answer, epsilons.
+        max_radii: Most candidate radii per joint.
+        min_coverage: Coverage the consistency step requires.
+        overlap_penalty: Penalty per overlapping pair of bones or joints.
+        max_terminal_rounds: Terminal re-assignments tried by the consistency step.
+        symmetric_tolerance: Energy slack within which symmetric permutations compete.
+        min_drawing_ratio: Smallest drawing diagonal relative to the character's.
+    """
+
+    preprocess: PreprocessParams = field(default_factory=PreprocessParams)
+    costs: CostParams = field(default_factory=CostParams)
+    refine: RefineParams = field(default_factory=RefineParams)
+    min_bone_epsilons: float = 2.0
+    max_candidates: int = 48
+    coarse_grid: int = 40
+    fine_grid_reach: float = 2.0
+    max_radii: int = 3
+    min_coverage: float = 0.85
+    overlap_penalty: float = 10.0
+    max_terminal_rounds: int = 6
+    symmetric_tolerance: float = 0.5
+    min_drawing_ratio: float = 0.25
+
+
+def posed_joints(solving: SolvingSkeleton, skeleton: Skeleton, pose: Pose) -> np.ndarray:
+    """World positions of the joints in ``pose``, shape ``(J, 3)``."""
+    state = skeleton.forward(pose)
+    out = np.empty((solving.n_joints, 3))
+    out[solving.tail_joint] = state.tails[solving.bones]
+    heads = solving.bones
+    out[solving.head_joint] = state.heads[heads]
+    return out
+
+
+def _solve(problem, cands: list[JointCandidates], penalty: dict[int, np.ndarray]):
+    """Run the DP with extra unary penalties; return labels, energy."""
+    cands = [c if j not in penalty else JointCandidates(
+        c.positions, c.radii, c.side, c.origin, c.group, c.unary + penalty[j], c.aligned)
+        for j, c in enumerate(cands)]
+    return solve_tree(build_energy(problem, cands))
+
+
+def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices: np.ndarray,
+                camera: Camera, weights: np.ndarray | None = None,
+                params: GestureParams | None = None, override: np.ndarray | None = None,
+                solving: SolvingSkeleton | None = None) -> Embedding2D:
+    """Embed the solving skeleton in a gesture drawing.
+
+    Args:
+        strokes: The drawing's contour strokes, pixels.
+        skeleton: The character's skeleton (rest pose, world space).
+        pose: Its current pose: sets the view scale and the left/right reference.
+        vertices: Rest mesh vertices in world space, ``(V, 3)``.
+        camera: The view the drawing was made in.
+        weights: Skin weights ``(V, n_bones)`` or None (distance-based regions).
+        params: Parameters (defaults: the paper's).
+        override: Bones of the "Gesture" collection, ``(n,)`` bool, or None.
+        solving: A prebuilt solving skeleton (overrides ``override``).
+
+    Returns:
+        The embedding with its diagnostics.
+
+    Raises:
+        InputError: No strokes, a drawing far smaller than the character, no mesh.
+    """
+    params = params or GestureParams()
+    timings: dict[str, float] = {}
+    warnings: list[str] = []
+    t0 = time.perf_counter()
+    drawing = preprocess(list(strokes), params.preprocess)
+    solving = solving or solving_skeleton(skeleton, override, params.min_bone_epsilons)
+    world = posed_joints(solving, skeleton, pose)
+    reference = camera.project(world)
+    if not np.all(np.isfinite(reference)):
+        raise InputError("The character is behind the view: frame it before fitting.")
+    char_diag = float(np.linalg.norm(reference.max(axis=0) - reference.min(axis=0)))
+    if drawing.diagonal < params.min_drawing_ratio * char_diag:
+        raise InputError(
+            f"The drawing ({drawing.diagonal:.0f} px across) is far smaller than the "
+            f"character in the view ({char_diag:.0f} px): draw over the whole character.")
+    ppu = camera.pixels_per_unit(float(np.mean(camera.depth(world))))
+    timings["preprocess"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    r_min, r_max = joint_radii(solving, skeleton, vertices, weights)
+    problem = make_problem(drawing, solving, ppu, params.costs)
+    eps = drawing.epsilon
+    terminal = problem.terminal
+    contour = [contour_candidates(drawing, discrete_radii(r_min[j] * ppu, r_max[j] * ppu, eps,
+                                                          params.max_radii),
+                                  bool(terminal[j]), params.costs, params.max_candidates)
+               for j in range(solving.n_joints)]
+    mid_r = 0.5 * (r_min + r_max) * ppu
+    area = float(np.prod(np.maximum(drawing.bbox[1] - drawing.bbox[0], eps)))
+    spacing = max(eps, np.sqrt(area / params.coarse_grid))
+    cands = [JointCandidates.concat([c, grid_candidates(drawing, spacing, mid_r[j],
+                                                        params=params.costs)])
+             for j, c in enumerate(contour)]
+    timings["candidates"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    labels, _ = solve_tree(build_energy(problem, cands))
+    first = configuration(cands, labels)
+    reach = params.fine_grid_reach * eps
+    cands = [JointCandidates.concat([c, grid_candidates(drawing, eps, mid_r[j],
+                                                        first.positions[j], reach,
+                                                        params.costs)])
+             for j, c in enumerate(contour)]
+    labels, energy = solve_tree(build_energy(problem, cands))
+    timings["mrf"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    conf, rounds = configuration(cands, labels), 0
+    best = None
+    penalty: dict[int, np.ndarray] = {}
+    for rounds in range(params.max_terminal_rounds + 1):
+        assign = assign_contours(problem, conf)
+        n_bad = len(assign.overlaps)
+        score = energy + params.overlap_penalty * n_bad
+        if best is None or (n_bad, score) < (best[0], best[1]):
+            best = (n_bad, score, conf, assign)
+        if n_bad == 0 and assign.coverage >= params.min_coverage:
+            break
+        culprits = overlap_joints(problem, assign.overlaps) if n_bad else np.flatnonzero(
+            terminal & (conf.unary > 0.5))
+        if culprits.size == 0 or rounds == params.max_terminal_rounds:
+            break
+        for j in culprits:
+            pen = penalty.setdefault(int(j), np.zeros(len(cands[j])))
+            pen[labels[j]] += params.overlap_penalty
+        labels, energy = _solve(problem, cands, penalty)
+        conf = configuration(cands, labels)
+    n_bad, _, conf, assign = best
+    if n_bad:
+        warnings.append(f"{n_bad} pairs of body parts claim the same contour.")
+    limbs = symmetric_limbs(problem)
+    options = []
+    for mask in range(2 ** len(limbs)):
+        perm = permute(conf, limbs, mask)
+        e = joint_energy(problem, perm)[0]
+        options.append((e, twist_score(problem, perm.positions, reference), mask, perm))
+    e_min = min(o[0] for o in options)
+    close = [o for o in options if o[0] <= e_min + params.symmetric_tolerance]
+    _, _, mask, conf = min(close, key=lambda o: (o[1], o[0], o[2]))
+    timings["consistency"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    conf, refine_info = refine(problem, conf, reference, params.refine)
+    timings["refine"] = time.perf_counter() - t0
+    return _result(problem, conf, refine_info, timings, warnings, rounds, mask)
+
+
+def _runs(samples: np.ndarray, drawing) -> tuple[np.ndarray, ...]:
+    """Split sorted sample indices into runs that are consecutive along the contour."""
+    if samples.size == 0:
+        return ()
+    samples = np.sort(samples)
+    breaks = np.flatnonzero(drawing.next[samples[:-1]] != samples[1:]) + 1
+    return tuple(drawing.points[run] for run in np.split(samples, breaks) if len(run) >= 2)
+
+
+def _result(problem, conf: JointCandidates, refine_info: dict, timings: dict,
+            warnings: list[str], rounds: int, mask: int) -> Embedding2D:
+    """Assemble the :class:`Embedding2D` of a final configuration."""
+    d, s = problem.drawing, problem.solving
+    assign = assign_contours(problem, conf)
+    energy, terms = joint_energy(problem, conf)
+    terms = dict(terms)
+    terms["overlap"] = problem_penalty = len(assign.overlaps) * 10.0
+    terms.update(refine_info)
+    terms["terminal_rounds"] = rounds
+    terms["symmetric_permutation"] = mask
+    segs, sides = [], []
+    for b in range(s.n_bones):
+        left, right = _runs(assign.bone_left[b], d), _runs(assign.bone_right[b], d)
+        segs.append(left + right)
+        sides.append((1,) * len(left) + (-1,) * len(right))
+    contours = tuple(d.points[d.offsets[k]:d.offsets[k + 1]] for k in range(len(d.offsets) - 1))
+    normals = tuple(d.normals[d.offsets[k]:d.offsets[k + 1]] for k in range(len(d.offsets) - 1))
+    visible = conf.origin >= 0
+    if not visible.all():
+        hidden = [s.joint_bones[j] for j in np.flatnonzero(~visible)]
+        warnings.append(f"Joints placed as hidden (no contour): {', '.join(hidden)}.")
+    timings["total"] = sum(timings.values())
+    return Embedding2D(
+        solving=s, joints2d=conf.positions.copy(), joint_visible=visible,
+        joint_radius=conf.radii.copy(), bone_segments=tuple(segs),
+        bone_segment_sides=tuple(sides), occlusions=(), contours=contours,
+        contour_normals=normals, coverage=assign.coverage,
+        e_match=float(energy + problem_penalty), terms=terms, timings=dict(timings),
+        joint_side=conf.side.copy(), joint_segments=tuple(d.points[a]
+                                                          for a in assign.joint_samples),
+        bridges=d.bridges.copy(), epsilon=d.epsilon, warnings=tuple(warnings))

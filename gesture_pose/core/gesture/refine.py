@@ -1,0 +1,187 @@
+"""2D refinement of the embedding (Gesture3D Section 6).
+
+The discrete solution puts joints on candidate positions only. Each joint then takes a
+local random walk: trial moves around it (Gaussian, epsilon / 2) are kept when they lower
+the part of ``E_match`` touching the joint, keep the joint on the same side of every nearby
+contour and create no new inconsistency (the consistency term of its bones may not grow).
+Joints with reduced degrees of freedom, the pelvis and the shoulders, whose joints are tied
+by rigid offsets, are snapped to the nearest 2D rigid transform of their bind-pose
+neighbourhood (one ICP step, a 2D Kabsch fit). This repeats until no joint moves. The walk
+uses a fixed seed, so a given input always gives the same result.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .candidates import JointCandidates
+from .costs import pair_cost, rigid_cost, triplet_cost, unary_cost
+from .mrf import MatchProblem, joint_energy
+
+
+@dataclass(frozen=True)
+class RefineParams:
+    """Refinement parameters.
+
+    Attributes:
+        iterations: Maximum sweeps over the joints.
+        trials: Trial moves per joint and sweep.
+        step: Standard deviation of a trial move, in epsilons.
+        seed: Random seed.
+        snap_rigid: Snap the rigid neighbourhoods (pelvis, shoulders).
+    """
+
+    iterations: int = 8
+    trials: int = 12
+    step: float = 0.5
+    seed: int = 0
+    snap_rigid: bool = True
+
+
+def _factor_energy(problem: MatchProblem, conf: JointCandidates, j: int,
+                   trial: np.ndarray) -> np.ndarray:
+    """Energy of the factors touching joint ``j`` with ``j`` moved to each trial, ``(T,)``."""
+    s, d, prm = problem.solving, problem.drawing, problem.params
+    par = s.joint_parent
+    t = len(trial)
+    r = np.full(t, conf.radii[j])
+    g = np.full(t, conf.group[j])
+    sd = np.full(t, conf.side[j])
+    total = unary_cost(d, trial, r, bool(problem.terminal[j]), prm)[0]
+
+    def link(child: int, pa, ra, ga, sa, pb, rb, gb, sb) -> np.ndarray:
+        if s.joint_link_bone[child] < 0:
+            return rigid_cost(d, pa, pb, problem.link_length[child], prm)
+        return pair_cost(d, pa, ra, ga, sa, pb, rb, gb, sb, problem.link_length[child], prm)
+
+    c1 = conf.take(np.arange(len(conf)))
+    P, R, G, S = c1.positions, c1.radii, c1.group, c1.side
+
+    def one(k: int):
+        return P[k:k + 1], R[k:k + 1], G[k:k + 1], S[k:k + 1]
+
+    p = par[j]
+    if p >= 0:
+        total = total + link(j, *one(p), trial, r, g, sd)[0]
+    for c in np.flatnonzero(par == j):
+        total = total + link(c, trial, r, g, sd, *one(c))[:, 0]
+
+    def trip(k: int, pa, pb, pc, ga, gb, gc) -> np.ndarray:
+        shared = (ga[:, None, None] == gb[None, :, None]) & (gb[None, :, None] ==
+                                                              gc[None, None, :]) & (gc >= 0)
+        return triplet_cost(pa, pb, pc, shared, float(problem.rest_angle[k]), prm)
+
+    # j as the last joint, the middle joint, or the first joint of a triplet.
+    if p >= 0 and problem.has_triplet(j):
+        gp = par[p]
+        total = total + trip(j, P[gp:gp + 1], P[p:p + 1], trial, G[gp:gp + 1], G[p:p + 1],
+                             g)[0, 0, :]
+    for c in np.flatnonzero(par == j):
+        if problem.has_triplet(c):
+            total = total + trip(c, P[p:p + 1], trial, P[c:c + 1], G[p:p + 1], g,
+                                 G[c:c + 1])[0, :, 0]
+        for gc in np.flatnonzero(par == c):
+            if problem.has_triplet(gc):
+                total = total + trip(gc, trial, P[c:c + 1], P[gc:gc + 1], g, G[c:c + 1],
+                                     G[gc:gc + 1])[:, 0, 0]
+    return total
+
+
+def _same_side(problem: MatchProblem, old: np.ndarray, trial: np.ndarray,
+               reach: float) -> np.ndarray:
+    """Trials on the same side as ``old`` of every contour sample within ``reach``, ``(T,)``."""
+    d = problem.drawing
+    near = d.tree.query_ball_point(old, reach)
+    if not near:
+        return np.ones(len(trial), bool)
+    near = np.asarray(near)
+    side_old = np.sign(np.einsum("nd,nd->n", old[None] - d.points[near], d.normals[near]))
+    side_new = np.sign(np.einsum("tnd,nd->tn", trial[:, None] - d.points[near][None],
+                                 d.normals[near]))
+    return np.all(side_new * side_old[None] >= 0, axis=1)
+
+
+def rigid_groups(problem: MatchProblem) -> list[np.ndarray]:
+    """Joints tied by rigid offsets: a joint and its rigidly attached children, ``(k,)``."""
+    s = problem.solving
+    out = []
+    for p in range(s.n_joints):
+        kids = np.flatnonzero((s.joint_parent == p) & (s.joint_link_bone < 0))
+        if kids.size:
+            out.append(np.concatenate([[p], kids]))
+    return out
+
+
+def kabsch_2d(template: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """``template`` moved by the rigid 2D transform closest to ``target`` (least squares).
+
+    Args:
+        template: Points, ``(k, 2)``.
+        target: Points, ``(k, 2)``.
+
+    Returns:
+        Transformed template, ``(k, 2)``.
+    """
+    a = template - template.mean(axis=0)
+    b = target - target.mean(axis=0)
+    u, _, vt = np.linalg.svd(a.T @ b)
+    rot = (u @ vt).T
+    if np.linalg.det(rot) < 0:
+        vt[-1] *= -1
+        rot = (u @ vt).T
+    return a @ rot.T + target.mean(axis=0)
+
+
+def refine(problem: MatchProblem, conf: JointCandidates, template: np.ndarray,
+           params: RefineParams | None = None) -> tuple[JointCandidates, dict]:
+    """Local random walk and rigid snapping to convergence.
+
+    Args:
+        problem: The matching problem.
+        conf: One placement per joint (the discrete solution).
+        template: The character's joints in the view at the current pose, pixels, ``(J, 2)``.
+        params: Refinement parameters.
+
+    Returns:
+        ``(refined configuration, diagnostics)`` with ``"sweeps"``, ``"moves"``,
+        ``"energy_before"`` and ``"energy_after"``.
+    """
+    params = params or RefineParams()
+    rng = np.random.default_rng(params.seed)
+    eps = problem.drawing.epsilon
+    before = joint_energy(problem, conf)[0]
+    pos = conf.positions.copy()
+    moves, sweeps = 0, 0
+    groups = rigid_groups(problem) if params.snap_rigid else []
+    for sweep in range(1, params.iterations + 1):
+        sweeps = sweep
+        moved = 0
+        for j in range(len(pos)):
+            cur = JointCandidates(pos, conf.radii, conf.side, conf.origin, conf.group,
+                                  conf.unary, conf.aligned)
+            trial = pos[j] + rng.normal(0.0, params.step * eps, (params.trials, 2))
+            trial = np.concatenate([pos[j:j + 1], trial])
+            ok = _same_side(problem, pos[j], trial, 2.0 * conf.radii[j] + eps)
+            energy = _factor_energy(problem, cur, j, trial)
+            energy = np.where(ok, energy, np.inf)
+            k = int(np.argmin(energy))
+            if k > 0 and energy[k] < energy[0] - 1e-6:
+                pos = pos.copy()
+                pos[j] = trial[k]
+                moved += 1
+        for grp in groups:
+            snapped = kabsch_2d(template[grp], pos[grp])
+            trial_pos = pos.copy()
+            trial_pos[grp] = snapped
+            if np.abs(trial_pos - pos).max() > 1e-6:
+                pos = trial_pos
+        moves += moved
+        if moved == 0:
+            break
+    out = JointCandidates(pos, conf.radii, conf.side, conf.origin, conf.group, conf.unary,
+                          conf.aligned)
+    after = joint_energy(problem, out)[0]
+    return out, {"sweeps": sweeps, "moves": moves, "energy_before": before,
+                 "energy_after": after}
