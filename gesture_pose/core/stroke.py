@@ -136,3 +136,22 @@ class Stroke:
             raise InputError("Cannot take an empty piece of a stroke.")
         count = max(int(np.ceil((s1 - s0) / step)), 1)
         return Stroke(self.evaluate(np.linspace(s0, s1, count + 1)))
+
+
+def distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
+    """Distance from each point to the nearest point of a polyline.
+
+    Args:
+        points: Query points in pixels, shape ``(m, 2)``.
+        polyline: Polyline vertices in pixels, shape ``(n, 2)``, ``n >= 2``.
+
+    Returns:
+        Distances in pixels, shape ``(m,)``.
+    """
+    p = np.asarray(points, dtype=float)[:, None, :]
+    a = np.asarray(polyline, dtype=float)[None, :-1, :]
+    ab = np.diff(np.asarray(polyline, dtype=float), axis=0)[None]
+    denom = np.maximum(np.sum(ab * ab, axis=-1), 1e-300)
+    t = np.clip(np.sum((p - a) * ab, axis=-1) / denom, 0.0, 1.0)
+    closest = a + t[..., None] * ab
+    return np.min(np.linalg.norm(p - closest, axis=-1), axis=1)

@@ -41,7 +41,8 @@ def tree_skeleton() -> Skeleton:
     tails = np.array([[0, 0, 1], [0, 0, 1.5], [0.6, 0, 1], [1.1, 0, 1.0], [-0.6, 0, 1.05],
                       [-1.2, 0, 1.05]], float)
     parents = np.array([-1, 0, 0, 2, 0, 4])
-    frames = np.stack([frame_along(t - h, 0.2 * i) for i, (h, t) in enumerate(zip(heads, tails))])
+    pairs = enumerate(zip(heads, tails, strict=True))
+    frames = np.stack([frame_along(t - h, 0.2 * i) for i, (h, t) in pairs])
     return Skeleton(
         names=("root", "neck", "arm.L", "fore.L", "arm.R", "fore.R"),
         parents=parents,

@@ -81,8 +81,8 @@ def test_forward_matches_recursive_definition() -> None:
         else:
             carry = st.frames[p] @ R[p].T
             np.testing.assert_allclose(st.frames[i], carry @ R[i] @ q[i], atol=1e-12)
-            np.testing.assert_allclose(st.heads[i], st.heads[p] + carry @ (r[i] - r[p] + R[i] @ t[i]),
-                                       atol=1e-12)
+            expected = st.heads[p] + carry @ (r[i] - r[p] + R[i] @ t[i])
+            np.testing.assert_allclose(st.heads[i], expected, atol=1e-12)
 
 
 def test_aim_local_points_bone_and_keeps_twist() -> None:

@@ -1,0 +1,321 @@
+"""Posing one downward chain along its piece of the stroke (Sections 5-6).
+
+Walks the chain from its first joint: Eq. 2 picks each joint's feature point, Eq. 4 places
+the joint, the bone's local rotation is computed directly from the new direction with its
+twist kept, the bone's subtree follows rigidly, and Eq. 3 renormalizes the arc length. At
+a branch the child whose rotation has the smallest magnitude continues the chain.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..skeleton import PoseState, Skeleton
+from .alignment import ViewOps, joint_plane_depth, place_joint, stroke_circle_crossing
+from .chain import next_candidates
+from .features import SampledStroke, feature_param, renormalize_param
+from .options import PlaneMode, StrokeOptions, Tracking
+
+_Y = np.array([0.0, 1.0, 0.0])
+
+
+def _axis_angle_matrix(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rodrigues' formula for one unit axis, shape ``(3, 3)``."""
+    x, y, z = axis
+    k = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
+
+
+def rotation_between3(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
+    """Smallest rotation taking unit vector ``a`` to unit vector ``b`` and its angle."""
+    axis = np.cross(a, b)
+    s = float(np.linalg.norm(axis))
+    c = float(np.clip(a @ b, -1.0, 1.0))
+    angle = float(np.arctan2(s, c))
+    if s < 1e-12:
+        if c > 0.0:
+            return np.eye(3), 0.0
+        helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        axis = np.cross(a, helper)
+        s = float(np.linalg.norm(axis))
+    return _axis_angle_matrix(axis / s, angle), angle
+
+
+def twist_about_y(q: np.ndarray) -> np.ndarray:
+    """Twist factor ``T`` of ``q = S T`` (swing-twist about the bone's y axis), ``(3, 3)``."""
+    swing, _ = rotation_between3(_Y, q[:, 1])
+    return swing.T @ q
+
+
+@dataclass
+class ChainState:
+    """Mutable working copy of the pose while one stroke is applied.
+
+    Attributes:
+        rotations: Local rotations, shape ``(n, 3, 3)``.
+        heads: World heads, shape ``(n, 3)``.
+        tails: World tails, shape ``(n, 3)``.
+        frames: World frames, shape ``(n, 3, 3)``.
+        subtrees: Cache of each bone's subtree indices.
+    """
+
+    rotations: np.ndarray
+    heads: np.ndarray
+    tails: np.ndarray
+    frames: np.ndarray
+    subtrees: dict[int, np.ndarray] = field(default_factory=dict)
+
+    @classmethod
+    def from_state(cls, rotations: np.ndarray, state: PoseState) -> ChainState:
+        """Copy a pose and its forward kinematics."""
+        return cls(rotations.copy(), state.heads.copy(), state.tails.copy(), state.frames.copy())
+
+    def subtree(self, skeleton: Skeleton, bone: int) -> np.ndarray:
+        """Bone ``bone`` and its descendants (cached)."""
+        if bone not in self.subtrees:
+            self.subtrees[bone] = skeleton.descendants(bone)
+        return self.subtrees[bone]
+
+    def rotate_bone(self, skeleton: Skeleton, bone: int, new_local: np.ndarray) -> None:
+        """Set a bone's local rotation; its subtree turns rigidly about its head."""
+        carry = self.frames[bone] @ self.rotations[bone].T
+        world = carry @ new_local @ self.frames[bone].T
+        idx = self.subtree(skeleton, bone)
+        pivot = self.heads[bone]
+        self.frames[idx] = world @ self.frames[idx]
+        self.heads[idx] = pivot + (self.heads[idx] - pivot) @ world.T
+        self.tails[idx] = pivot + (self.tails[idx] - pivot) @ world.T
+        self.rotations[bone] = new_local
+
+
+def aimed_rotation(cs: ChainState, bone: int, seg_end: np.ndarray,
+                   new_end: np.ndarray) -> tuple[np.ndarray, float]:
+    """Local rotation of ``bone`` moving its segment end to ``new_end``, and the angle moved.
+
+    The rotation is computed directly, not compounded: for a segment along the bone
+    (connected child or tail) it is the swing taking y to the new direction times the old
+    twist, so the twist about the bone is preserved; for an offset child it is the smallest
+    rotation of the segment.
+
+    Args:
+        cs: Working pose.
+        bone: Bone index.
+        seg_end: Current world end of the bone's segment, shape ``(3,)``.
+        new_end: Desired world end, shape ``(3,)``.
+
+    Returns:
+        ``(local rotation (3, 3), angle in radians)``.
+    """
+    head = cs.heads[bone]
+    frame, q = cs.frames[bone], cs.rotations[bone]
+    carry = frame @ q.T
+    cur = seg_end - head
+    cur_dir = cur / np.linalg.norm(cur)
+    new = new_end - head
+    new_dir = new / np.linalg.norm(new)
+    _, angle = rotation_between3(cur_dir, new_dir)
+    target_local = carry.T @ new_dir
+    seg_local = frame.T @ cur_dir
+    if seg_local @ _Y > 1.0 - 1e-9:
+        swing, _ = rotation_between3(_Y, target_local)
+        return swing @ twist_about_y(q), angle
+    delta, _ = rotation_between3(q @ seg_local, target_local)
+    return delta @ q, angle
+
+
+@dataclass(frozen=True)
+class PartOutcome:
+    """What posing one chain did.
+
+    Attributes:
+        bones: Chain bones in order.
+        targets: Target pixel of each segment end, shape ``(k, 2)``.
+        landed: Projection of each posed segment end, shape ``(k, 2)``.
+        skipped: Bones left alone because they lie along the view axis.
+        angles: Rotation magnitude applied to each bone, radians, shape ``(k,)``.
+    """
+
+    bones: tuple[int, ...]
+    targets: np.ndarray
+    landed: np.ndarray
+    skipped: tuple[int, ...]
+    angles: np.ndarray
+
+
+@dataclass(frozen=True)
+class PartSpec:
+    """Inputs of :func:`pose_part` besides the working pose.
+
+    Attributes:
+        start_candidates: Bones that may start the chain.
+        fixed_bones: Predetermined chain, or None to choose at branches.
+        direction_path: Bones the chain must follow where it can.
+        stop_when_exhausted: End the chain when the stroke runs out (position tracking).
+    """
+
+    start_candidates: tuple[int, ...]
+    fixed_bones: tuple[int, ...] | None
+    direction_path: frozenset[int]
+    stop_when_exhausted: bool
+
+
+class _Walker:
+    """One pass down a chain; holds the per-pass constants."""
+
+    def __init__(self, skeleton: Skeleton, view: ViewOps, sampled: SampledStroke,
+                 options: StrokeOptions, cs: ChainState) -> None:
+        self.sk, self.view, self.sampled, self.opt, self.cs = (
+            skeleton, view, sampled, options, cs)
+        self.plane = options.mode is PlaneMode.PLANE
+        self.shape = options.tracking is Tracking.SHAPE
+        self.head_depth = view.depth(cs.heads)
+        self.tail_depth = view.depth(cs.tails)
+        self.crossing = options.feature_extraction and not self.shape
+        if self.crossing:
+            self.origins, self.directions = view.rays(sampled.points)
+        right = np.cross(view.forward, [0.0, 0.0, 1.0])
+        if np.linalg.norm(right) < 1e-6:
+            right = np.cross(view.forward, [0.0, 1.0, 0.0])
+        self.right = right / np.linalg.norm(right)
+
+    def projected_length(self, start: np.ndarray, end: np.ndarray) -> float:
+        """Pixels the segment covers now, or would cover orthogonal to the view (plane)."""
+        if self.plane:
+            length = float(np.linalg.norm(end - start))
+            px = self.view.project(np.stack([start, start + self.right * length]))
+        else:
+            px = self.view.project(np.stack([start, end]))
+        return float(np.linalg.norm(px[1] - px[0]))
+
+    def target(self, s_prev: float, seg_start: np.ndarray, seg_end: np.ndarray,
+               landed_prev: np.ndarray) -> tuple[float, np.ndarray]:
+        """Feature arc length (Eq. 2) and target pixel of a segment's end."""
+        lp = self.projected_length(seg_start, seg_end)
+        guess = min(s_prev + lp, self.sampled.length)
+        s = guess
+        if self.opt.feature_extraction:
+            s = feature_param(self.sampled, guess, lp / 3.0, self.opt.feature_min_curvature)
+        if self.shape:
+            return s, landed_prev + self.sampled.at(s) - self.sampled.at(s_prev)
+        return s, self.sampled.at(s)
+
+    def try_bone(self, bone: int, seg_end: np.ndarray, end_child: int, s_prev: float,
+                 landed_prev: np.ndarray) -> tuple[np.ndarray | None, float, float, np.ndarray]:
+        """Placement of one bone's segment: (rotation or None if skipped, angle, s, target).
+
+        ``end_child`` is the child whose head ends the segment, or -1 for the bone's tail.
+        """
+        head = self.cs.heads[bone]
+        length = float(np.linalg.norm(seg_end - head))
+        if length < 1e-12:
+            return None, 0.0, s_prev, landed_prev
+        original = self.tail_depth[bone] if end_child < 0 else self.head_depth[end_child]
+        depth = joint_plane_depth(self.view, head, seg_end, length, original, self.plane,
+                                  self.opt.view_axis_tolerance)
+        s, tgt = self.target(s_prev, head, seg_end, landed_prev)
+        if self.crossing:
+            lp = self.projected_length(head, seg_end)
+            root = stroke_circle_crossing(
+                self.view, self.origins, self.directions, self.sampled.params, head, length,
+                depth, s_prev, s)
+            if root is not None and abs(root - s) <= max(lp, 2.0 * self.sampled.step):
+                s, tgt = root, self.sampled.at(root)
+        placed = place_joint(self.view, head, seg_end, length, tgt, depth,
+                             self.opt.view_axis_tolerance)
+        if placed.skipped:
+            return None, 0.0, s, tgt
+        rot, angle = aimed_rotation(self.cs, bone, seg_end, placed.position)
+        return rot, angle, s, tgt
+
+
+def _segment_ends(skeleton: Skeleton, cs: ChainState, bone: int,
+                  kids: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Group candidate children by head position: ``[(end point, children), ...]``."""
+    if kids.size == 0:
+        return [(cs.tails[bone], kids)]
+    groups: list[tuple[np.ndarray, np.ndarray]] = []
+    tol = 1e-6 * max(float(np.linalg.norm(cs.tails[bone] - cs.heads[bone])), 1e-9)
+    for k in kids:
+        for gi, (p, members) in enumerate(groups):
+            if np.linalg.norm(cs.heads[k] - p) <= tol:
+                groups[gi] = (p, np.append(members, k))
+                break
+        else:
+            groups.append((cs.heads[k].copy(), np.array([k])))
+    return groups
+
+
+def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: ChainState,
+              spec: PartSpec, options: StrokeOptions) -> PartOutcome:
+    """Pose one chain along a (prepared) stroke piece, updating ``cs`` in place.
+
+    Args:
+        skeleton: The skeleton.
+        view: Camera operations.
+        sampled: The stroke piece, starting on the chain's first joint (Eq. 1).
+        cs: Working pose, modified in place.
+        spec: Chain candidates and stopping rule.
+        options: Posing options.
+
+    Returns:
+        What was posed.
+    """
+    walker = _Walker(skeleton, view, sampled, options, cs)
+    fixed = spec.fixed_bones
+    candidates = np.asarray(fixed[:1] if fixed else spec.start_candidates, dtype=int)
+    s_prev, landed_prev = 0.0, sampled.at(0.0)
+    bones, targets, landed, skipped, angles = [], [], [], [], []
+    while candidates.size:
+        bone = _choose(skeleton, walker, candidates, s_prev, landed_prev)
+        pos = len(bones)
+        if fixed is not None:
+            kids = np.asarray(fixed[pos + 1:pos + 2], dtype=int)
+        else:
+            kids = next_candidates(skeleton, bone, spec.direction_path)
+        ends = _segment_ends(skeleton, cs, bone, kids)
+        results = [walker.try_bone(bone, end, int(m[0]) if m.size else -1, s_prev, landed_prev)
+                   for end, m in ends]
+        best = int(np.argmin([r[1] if r[0] is not None else np.inf for r in results]))
+        if results[best][0] is None:
+            best = 0
+        rot, angle, s, tgt = results[best]
+        end, members = ends[best]
+        if spec.stop_when_exhausted and fixed is None and pos > 0:
+            lp = walker.projected_length(cs.heads[bone], end)
+            if sampled.length - s_prev < 0.5 * lp:
+                break
+        offset_local = cs.frames[bone].T @ (end - cs.heads[bone])
+        if rot is None:
+            skipped.append(bone)
+        else:
+            cs.rotate_bone(skeleton, bone, rot)
+        new_end = cs.heads[bone] + cs.frames[bone] @ offset_local
+        land = view.project(new_end)
+        if options.tracking is Tracking.POSITION and options.feature_extraction:
+            s = renormalize_param(sampled, land, s, max(walker.projected_length(
+                cs.heads[bone], new_end) / 3.0, 2.0 * sampled.step))
+        bones.append(bone)
+        targets.append(tgt)
+        landed.append(land)
+        angles.append(angle if rot is not None else 0.0)
+        s_prev, landed_prev = s, land
+        candidates = members
+        if fixed is not None and pos + 1 >= len(fixed):
+            break
+    return PartOutcome(tuple(bones), np.array(targets).reshape(-1, 2),
+                       np.array(landed).reshape(-1, 2), tuple(skipped), np.array(angles))
+
+
+def _choose(skeleton: Skeleton, walker: _Walker, candidates: np.ndarray, s_prev: float,
+            landed_prev: np.ndarray) -> int:
+    """The candidate bone whose own alignment needs the smallest rotation."""
+    if candidates.size == 1:
+        return int(candidates[0])
+    cs = walker.cs
+    angles = []
+    for c in candidates:
+        rot, angle, _, _ = walker.try_bone(int(c), cs.tails[c], -1, s_prev, landed_prev)
+        angles.append(angle if rot is not None else np.inf)
+    return int(candidates[int(np.argmin(angles))])
