@@ -1,0 +1,203 @@
+"""Correspondences between projected abstraction curves and drawn strokes (Hahn et al. 2015).
+
+Two procedures give, for the matching energy of Eq. 3, pairs of (a blend of projected
+abstraction points, a target pixel):
+
+- **in-order**: both curves are parametrized by normalized arc length in their drawing
+  direction, so abstraction point ``i`` at fraction ``u_i`` of its projected curve is paired
+  with the stroke point at fraction ``u_i`` of the stroke;
+- **closest point**: each abstraction point is paired with the closest point of the stroke,
+  and each stroke sample with the closest point of the projected curve (both directions, so
+  a curve cannot shrink onto part of a stroke).
+
+Strokes are assigned to curves by drawing order (i-th stroke to i-th curve) or by proximity
+(an optimal assignment on the mean symmetric distance).
+
+All correspondences are rows ``sum_i C[q, i] pi(x_i) - T[q]`` with a sparse ``C``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+from scipy.optimize import linear_sum_assignment
+
+from ..exceptions import InputError
+from ..stroke import Stroke
+from .curves import CurveLayout, polyline_arclength
+
+IN_ORDER = "IN_ORDER"
+CLOSEST = "CLOSEST"
+BY_ORDER = "ORDER"
+BY_PROXIMITY = "PROXIMITY"
+
+
+@dataclass(frozen=True)
+class Correspondences:
+    """Matching rows of Eq. 3.
+
+    Attributes:
+        blend: Sparse ``C``, shape ``(q, m)``: each row blends projected abstraction points.
+        targets: Target pixels ``T``, shape ``(q, 2)``.
+        weights: Row weights, shape ``(q,)`` (summing to 1).
+        pairs: ``(curve, stroke)`` index pairs that were matched.
+    """
+
+    blend: sparse.csr_matrix
+    targets: np.ndarray
+    weights: np.ndarray
+    pairs: tuple[tuple[int, int], ...]
+
+    def residuals(self, pixels: np.ndarray) -> np.ndarray:
+        """Pixel residuals ``C pi(x) - T`` for projected points ``(m, 2)``, shape ``(q, 2)``."""
+        return np.asarray(self.blend @ pixels) - self.targets
+
+
+def _closest_on_polyline(queries: np.ndarray, poly: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest points of a polyline to queries.
+
+    Args:
+        queries: Points, shape ``(q, 2)``.
+        poly: Polyline, shape ``(k, 2)``, ``k >= 2``.
+
+    Returns:
+        ``(segment (q,), fraction (q,))``: the closest point is
+        ``poly[seg] + frac (poly[seg + 1] - poly[seg])``.
+    """
+    a, b = poly[:-1], poly[1:]
+    ab = b - a
+    denom = np.maximum(np.sum(ab * ab, axis=1), 1e-18)
+    t = np.clip(np.einsum("qsd,sd->qs", queries[:, None, :] - a[None], ab) / denom, 0.0, 1.0)
+    closest = a[None] + t[..., None] * ab[None]
+    d2 = np.sum((closest - queries[:, None, :]) ** 2, axis=2)
+    seg = np.argmin(d2, axis=1)
+    return seg, t[np.arange(len(queries)), seg]
+
+
+def _symmetric_distance(curve: np.ndarray, stroke_pts: np.ndarray) -> float:
+    """Mean closest-point distance from each polyline to the other, pixels."""
+    total = 0.0
+    for q, p in ((curve, stroke_pts), (stroke_pts, curve)):
+        seg, t = _closest_on_polyline(q, p)
+        pt = p[seg] + t[:, None] * (p[seg + 1] - p[seg])
+        total += float(np.linalg.norm(pt - q, axis=1).mean())
+    return 0.5 * total
+
+
+def assign_strokes(curves_2d: list[np.ndarray], strokes: list[Stroke],
+                   mode: str = BY_PROXIMITY) -> tuple[tuple[int, int], ...]:
+    """Assign strokes to abstraction curves.
+
+    Args:
+        curves_2d: Projected curves, each ``(m_i, 2)`` pixels.
+        strokes: Drawn strokes, oldest first.
+        mode: ``"ORDER"`` (stroke ``i`` to curve ``i``) or ``"PROXIMITY"``.
+
+    Returns:
+        ``(curve, stroke)`` pairs, as many as ``min(len(curves), len(strokes))``.
+
+    Raises:
+        InputError: No stroke or an unknown mode.
+    """
+    if not strokes:
+        raise InputError("There is no stroke to pose from: draw strokes in the sketch object.")
+    k = min(len(curves_2d), len(strokes))
+    if mode == BY_ORDER:
+        return tuple((i, i) for i in range(k))
+    if mode != BY_PROXIMITY:
+        raise InputError(f"Unknown stroke assignment '{mode}': use ORDER or PROXIMITY.")
+    cost = np.empty((len(curves_2d), len(strokes)))
+    for j, stroke in enumerate(strokes):
+        pts = stroke.evaluate(np.linspace(0.0, stroke.length, 32))
+        for i, curve in enumerate(curves_2d):
+            cost[i, j] = _symmetric_distance(curve, pts)
+    rows, cols = linear_sum_assignment(cost)
+    return tuple(sorted((int(r), int(c)) for r, c in zip(rows, cols, strict=True)))
+
+
+def in_order_rows(curve: np.ndarray, stroke: Stroke) -> tuple[np.ndarray, np.ndarray]:
+    """In-order targets: normalized arc length on the projected curve mapped onto the stroke.
+
+    Args:
+        curve: Projected (resampled) abstraction curve, shape ``(m, 2)`` pixels.
+        stroke: Its stroke.
+
+    Returns:
+        ``(point_indices (m,), targets (m, 2))``, indices local to the curve.
+    """
+    s = polyline_arclength(curve)
+    u = s / max(s[-1], 1e-12)
+    return np.arange(len(curve)), stroke.evaluate(u * stroke.length)
+
+
+def closest_rows(curve: np.ndarray, stroke: Stroke, step: float = 2.0):
+    """Closest-point rows in both directions.
+
+    Args:
+        curve: Projected abstraction curve, shape ``(m, 2)`` pixels.
+        stroke: Its stroke.
+        step: Sampling step of the stroke, pixels.
+
+    Returns:
+        ``(rows, cols, vals, targets)`` of the local blend (rows of curve-to-stroke pairs
+        first, then stroke-to-curve pairs) and the targets ``(q, 2)``.
+    """
+    poly = stroke.resample(step)
+    m = len(curve)
+    seg, t = _closest_on_polyline(curve, poly)
+    fwd_targets = poly[seg] + t[:, None] * (poly[seg + 1] - poly[seg])
+    seg_b, t_b = _closest_on_polyline(poly, curve)
+    k = len(poly)
+    rows = np.concatenate([np.arange(m), m + np.arange(k), m + np.arange(k)])
+    cols = np.concatenate([np.arange(m), seg_b, seg_b + 1])
+    vals = np.concatenate([np.ones(m), 1.0 - t_b, t_b])
+    return rows, cols, vals, np.concatenate([fwd_targets, poly]), m, k
+
+
+def build_correspondences(pixels: np.ndarray, layout: CurveLayout, strokes: list[Stroke],
+                          pairs: tuple[tuple[int, int], ...],
+                          procedure: str = IN_ORDER) -> Correspondences:
+    """Correspondences of every matched (curve, stroke) pair at the current pose.
+
+    Each matched curve gets the same total weight; within the closest-point procedure the
+    two directions share it equally.
+
+    Args:
+        pixels: Projected abstraction points, shape ``(m, 2)``.
+        layout: Curves of the points.
+        strokes: Drawn strokes.
+        pairs: ``(curve, stroke)`` pairs from :func:`assign_strokes`.
+        procedure: ``"IN_ORDER"`` or ``"CLOSEST"``.
+
+    Returns:
+        The correspondences.
+    """
+    if procedure not in (IN_ORDER, CLOSEST):
+        raise InputError(f"Unknown correspondence procedure '{procedure}': use IN_ORDER or "
+                         "CLOSEST.")
+    if not np.all(np.isfinite(pixels)):
+        raise InputError("Part of the abstraction is behind the view: move the view back.")
+    rows, cols, vals, targets, weights = [], [], [], [], []
+    start = 0
+    share = 1.0 / len(pairs)
+    for c, s in pairs:
+        sl = layout.curve(c)
+        curve = pixels[sl]
+        if procedure == IN_ORDER:
+            idx, tgt = in_order_rows(curve, strokes[s])
+            r, cc, v = idx, idx, np.ones(len(idx))
+            w = np.full(len(idx), share / len(idx))
+        else:
+            r, cc, v, tgt, m, k = closest_rows(curve, strokes[s])
+            w = np.concatenate([np.full(m, 0.5 * share / m), np.full(k, 0.5 * share / k)])
+        rows.append(r + start)
+        cols.append(cc + sl.start)
+        vals.append(v)
+        targets.append(tgt)
+        weights.append(w)
+        start += len(tgt)
+    blend = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                              shape=(start, len(pixels)))
+    return Correspondences(blend, np.concatenate(targets), np.concatenate(weights), pairs)

@@ -1,0 +1,211 @@
+"""The bounded Gauss-Newton update as a quadratic program (bounds the paper lacked).
+
+Each update minimizes the quadratic model of :mod:`.energies`,
+``min_dp 1/2 dp^T (2H) dp + (2g)^T dp``, subject to linear bounds ``l <= A dp <= u``:
+
+- scales stay in ``[min_scale, max_scale]`` (0.1 by default), so a limb can never be
+  inverted by a negative scale (the paper's Figure 7);
+- IK limits of the pose bones hold on the rotation-vector components ``theta`` of the local
+  rotation ``Q exp(omega)``: ``theta(omega) ~ theta_0 + J_r^-1(theta_0) omega`` (right
+  Jacobian of the logarithm); locked axes get equal bounds;
+- a trust box limits one step (rotations in radians, translations in world units) so the
+  linearization stays valid.
+
+The problem is built by :func:`build_step_qp` and solved by :func:`solve_step_qp` with OSQP;
+a failed solve raises :class:`SolverError` with its status and residuals.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import osqp
+from scipy import sparse
+
+from ..exceptions import SolverError
+from ..rotations import exp_map, log_map, skew
+from .energies import QuadraticModel
+from .parameters import ParameterSpace, RigPose
+
+_INF = 1e30
+
+
+@dataclass(frozen=True)
+class StepLimits:
+    """Bounds of one update.
+
+    Attributes:
+        min_scale: Smallest allowed bone scale.
+        max_scale: Largest allowed bone scale.
+        ik_limits: ``[min, max]`` per local axis in radians, ``(n, 3, 2)``, NaN = free.
+        max_rotation_step: Trust box of rotation increments, radians.
+        max_scale_step: Trust box of scale increments.
+        max_translation_step: Trust box of translation increments, world units.
+    """
+
+    min_scale: float = 0.1
+    max_scale: float = 10.0
+    ik_limits: np.ndarray | None = None
+    max_rotation_step: float = 0.5
+    max_scale_step: float = 0.5
+    max_translation_step: float = 0.25
+
+
+@dataclass(frozen=True)
+class StepQP:
+    """An inspectable update problem ``min 1/2 x^T P x + q^T x, l <= A x <= u``.
+
+    Attributes:
+        P: Hessian, sparse ``(P, P)``.
+        q: Linear term, ``(P,)``.
+        A: Constraint matrix, sparse ``(c, P)``.
+        lower: ``l``, ``(c,)``.
+        upper: ``u``, ``(c,)``.
+        labels: What each constraint row bounds.
+    """
+
+    P: sparse.csc_matrix
+    q: np.ndarray
+    A: sparse.csc_matrix
+    lower: np.ndarray
+    upper: np.ndarray
+    labels: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class StepSolution:
+    """Solution of one update.
+
+    Attributes:
+        dp: The increment, ``(P,)``.
+        iterations: OSQP iterations.
+        status: OSQP status text.
+        primal_residual: OSQP primal residual.
+        dual_residual: OSQP dual residual.
+        active: Labels of the constraint rows at a bound (excluding the trust box).
+        seconds: Solve time.
+    """
+
+    dp: np.ndarray
+    iterations: int
+    status: str
+    primal_residual: float
+    dual_residual: float
+    active: tuple[str, ...]
+    seconds: float
+
+
+def inverse_right_jacobian(theta: np.ndarray) -> np.ndarray:
+    """``J_r^-1(theta) = d log(exp(theta) exp(w)) / dw`` at ``w = 0``, shape ``(..., 3, 3)``."""
+    t = np.linalg.norm(theta, axis=-1)[..., None, None]
+    k = skew(theta)
+    small = t < 1e-6
+    ts = np.where(small, 1.0, t)
+    coef = np.where(small, 1.0 / 12.0,
+                    1.0 / ts**2 - (1.0 + np.cos(ts)) / (2.0 * ts * np.sin(np.minimum(ts, 3.14))))
+    return np.eye(3) + 0.5 * k + coef * (k @ k)
+
+
+def project_to_limits(pose: RigPose, space: ParameterSpace, limits: StepLimits) -> RigPose:
+    """Clamp scales and the limited rotation-vector components of ``pose`` exactly."""
+    scales = pose.scales.copy()
+    sb = space.scale_bones
+    scales[sb] = np.clip(scales[sb], limits.min_scale, limits.max_scale)
+    rot = pose.rotations.copy()
+    if limits.ik_limits is not None:
+        rb = space.rotation_bones
+        lim = limits.ik_limits[rb]
+        limited = np.any(np.isfinite(lim[:, :, 0]), axis=1)
+        if np.any(limited):
+            theta = log_map(rot[rb[limited]])
+            lo = np.where(np.isfinite(lim[limited, :, 0]), lim[limited, :, 0], -np.inf)
+            hi = np.where(np.isfinite(lim[limited, :, 1]), lim[limited, :, 1], np.inf)
+            rot[rb[limited]] = exp_map(np.clip(theta, lo, hi))
+    return RigPose(rot, scales, pose.translations.copy())
+
+
+def build_step_qp(model: QuadraticModel, space: ParameterSpace, pose: RigPose,
+                  limits: StepLimits, names: tuple[str, ...]) -> StepQP:
+    """Build the bounded update problem at ``pose``.
+
+    Args:
+        model: Quadratic model of the energy.
+        space: The free parameters.
+        pose: The current pose (inside its limits).
+        limits: Bounds.
+        names: Bone names, for the row labels.
+
+    Returns:
+        The QP.
+    """
+    n = space.n_params
+    rb, sb, tb = space.rotation_bones, space.scale_bones, space.translation_bones
+    step = np.concatenate([np.full(3 * rb.size, limits.max_rotation_step),
+                           np.full(sb.size, limits.max_scale_step),
+                           np.full(3 * tb.size, limits.max_translation_step)])
+    rows = [sparse.identity(n, format="csr")]
+    lower, upper = [-step], [step]
+    labels = [f"step {space.describe(names, c)}" for c in range(n)]
+    if sb.size:
+        cols = space.scale_columns
+        rows.append(sparse.csr_matrix((np.ones(sb.size), (np.arange(sb.size), cols)),
+                                      shape=(sb.size, n)))
+        lower.append(limits.min_scale - pose.scales[sb])
+        upper.append(limits.max_scale - pose.scales[sb])
+        labels += [f"scale {names[b]}" for b in sb]
+    if limits.ik_limits is not None and rb.size:
+        lim = limits.ik_limits[rb]
+        theta = log_map(pose.rotations[rb])
+        jinv = inverse_right_jacobian(theta)
+        bone, axis = np.nonzero(np.isfinite(lim[:, :, 0]))
+        if bone.size:
+            data = jinv[bone, axis, :].ravel()
+            rr = np.repeat(np.arange(bone.size), 3)
+            cc = (3 * bone[:, None] + np.arange(3)[None]).ravel()
+            rows.append(sparse.csr_matrix((data, (rr, cc)), shape=(bone.size, n)))
+            lo = lim[bone, axis, 0] - theta[bone, axis]
+            hi = lim[bone, axis, 1] - theta[bone, axis]
+            lower.append(np.minimum(lo, 0.0))
+            upper.append(np.maximum(hi, 0.0))
+            labels += [f"limit {names[rb[b]]} {'xyz'[a]}" for b, a in zip(bone, axis,
+                                                                            strict=True)]
+    hess = 2.0 * model.hessian + 1e-10 * np.eye(n)
+    return StepQP(sparse.csc_matrix(np.triu(hess)), 2.0 * model.gradient,
+                  sparse.vstack(rows, format="csc"), np.concatenate(lower),
+                  np.concatenate(upper), tuple(labels))
+
+
+def solve_step_qp(qp: StepQP, tolerance: float = 1e-7, max_iter: int = 10000) -> StepSolution:
+    """Solve the update problem with OSQP.
+
+    Raises:
+        SolverError: OSQP did not solve the problem (status and residuals in ``details``).
+    """
+    t0 = time.perf_counter()
+    solver = osqp.OSQP()
+    solver.setup(qp.P, qp.q, qp.A, np.maximum(qp.lower, -_INF), np.minimum(qp.upper, _INF),
+                 verbose=False, eps_abs=tolerance, eps_rel=tolerance, max_iter=max_iter,
+                 polishing=False)
+    res = solver.solve(raise_error=False)
+    status = str(res.info.status)
+    details = {"status": status, "iterations": int(res.info.iter),
+               "primal_residual": float(res.info.prim_res),
+               "dual_residual": float(res.info.dual_res)}
+    if res.x is None or not np.all(np.isfinite(res.x)) or "solved" not in status:
+        raise SolverError(f"The bounded update failed (OSQP status '{status}').", details)
+    ax = qp.A @ res.x
+    gap = 1e-6 * np.maximum(1.0, np.abs(ax))
+    at_bound = (ax <= qp.lower + gap) | (ax >= qp.upper - gap)
+    active = tuple(lab for lab, a in zip(qp.labels, at_bound, strict=True)
+                   if a and not lab.startswith("step "))
+    return StepSolution(np.asarray(res.x, float), details["iterations"], status,
+                        details["primal_residual"], details["dual_residual"], active,
+                        time.perf_counter() - t0)
+
+
+def solve_step_unbounded(model: QuadraticModel) -> np.ndarray:
+    """The paper's unconstrained Gauss-Newton update ``H dp = -g``, shape ``(P,)``."""
+    n = len(model.gradient)
+    return np.linalg.lstsq(model.hessian + 1e-10 * np.eye(n), -model.gradient, rcond=None)[0]

@@ -1,0 +1,266 @@
+"""The ICP loop: alternate correspondences and bounded Gauss-Newton updates (Hahn et al. 2015).
+
+Each iteration (Sec. 4):
+
+1. evaluate the rig and its Jacobians ``J_x`` (abstraction points) and ``J_z``
+   (representative vertices) at the current pose;
+2. recompute correspondences between the projected abstraction and the strokes;
+3. build the quadratic model of ``E_match + W_pose + W_plane + W_dist`` (Eqs. 3, 8-11) and
+   solve the update as a bounded QP (or, with ``bounded=False``, the paper's unconstrained
+   Gauss-Newton system);
+4. apply the update with a backtracking line search on the true energy.
+
+The loop stops when the energy decrease falls below ``tolerance`` (relative), the step
+vanishes, or after ``max_iterations``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from ..camera import Camera
+from ..exceptions import InputError
+from ..stroke import Stroke
+from .coarsening import Coarsening
+from .correspondences import (
+    BY_PROXIMITY,
+    IN_ORDER,
+    Correspondences,
+    assign_strokes,
+    build_correspondences,
+)
+from .curves import CurveLayout
+from .energies import (
+    LAMBDA_DIST,
+    LAMBDA_PLANE,
+    LAMBDA_POSE,
+    QuadraticModel,
+    full_regularizer_value,
+    match_term,
+    pair_distances,
+    regularizer_terms,
+)
+from .parameters import ParameterSpace, RigPose
+from .qp import StepLimits, build_step_qp, project_to_limits, solve_step_qp, solve_step_unbounded
+
+
+class RigModel(Protocol):
+    """What the solver needs from a rig (analytic LBS or black-box finite differences)."""
+
+    space: ParameterSpace
+
+    def evaluate(self, pose: RigPose) -> tuple[np.ndarray, np.ndarray]:
+        """Abstraction points ``(m, 3)`` and representative vertices ``(k, 3)``."""
+
+    def jacobians(self, pose: RigPose) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(x, z, J_x (m, 3, P), J_z (k, 3, P))``."""
+
+
+@dataclass(frozen=True)
+class SolveOptions:
+    """Solver settings; the defaults are the paper's.
+
+    Attributes:
+        correspondence: ``"IN_ORDER"`` or ``"CLOSEST"``.
+        assignment: Strokes to curves by ``"ORDER"`` or ``"PROXIMITY"``.
+        lambda_pose: Weight of ``W_pose`` (Eq. 8).
+        lambda_plane: Weight of ``W_plane`` (Eq. 9).
+        lambda_dist: Weight of ``W_dist`` (Eq. 10).
+        max_iterations: ICP iterations at most.
+        tolerance: Stop when the relative energy decrease is below this.
+        bounded: Solve updates as bounded QPs (False: the paper's unbounded update).
+        limits: Scale bounds, IK limits and trust box of the bounded update.
+        line_search_steps: Step halvings tried when the energy does not decrease.
+        damping_decay: After each accepted update the step term ``W_pose`` (which measures
+            the update itself) is scaled by this factor, down to
+            ``min_damping`` (Levenberg-Marquardt style); a rejected update doubles them back
+            up to the paper's weights. 1 keeps the paper's weights throughout.
+        min_damping: Smallest scale of the step terms.
+    """
+
+    correspondence: str = IN_ORDER
+    assignment: str = BY_PROXIMITY
+    lambda_pose: float = LAMBDA_POSE
+    lambda_plane: float = LAMBDA_PLANE
+    lambda_dist: float = LAMBDA_DIST
+    max_iterations: int = 50
+    tolerance: float = 1e-5
+    bounded: bool = True
+    limits: StepLimits = field(default_factory=StepLimits)
+    line_search_steps: int = 8
+    damping_decay: float = 0.5
+    min_damping: float = 1e-3
+
+    def lambdas(self, damping: float = 1.0) -> tuple[float, float, float]:
+        """``(lambda_pose, lambda_plane, lambda_dist)`` with the step terms scaled."""
+        return (self.lambda_pose * damping, self.lambda_plane * damping, self.lambda_dist)
+
+
+@dataclass(frozen=True)
+class AbstractionProblem:
+    """Everything one solve needs, built before solving.
+
+    Attributes:
+        rig: The rig model.
+        names: Bone names (for labels).
+        camera: The view the strokes were drawn in.
+        layout: Curves of the rig's abstraction points.
+        strokes: Target strokes in pixels, oldest first.
+        coarse: Representative vertices of the regularizers.
+        start: Pose before the solve.
+    """
+
+    rig: RigModel
+    names: tuple[str, ...]
+    camera: Camera
+    layout: CurveLayout
+    strokes: tuple[Stroke, ...]
+    coarse: Coarsening
+    start: RigPose
+
+    def __post_init__(self) -> None:
+        """Check that there is something to match."""
+        if len(self.strokes) == 0:
+            raise InputError("There is no target stroke: draw the new pose first.")
+
+
+@dataclass(frozen=True)
+class SolveResult:
+    """Result and diagnostics of a solve.
+
+    Attributes:
+        pose: The optimized pose.
+        iterations: ICP iterations run.
+        converged: Whether the tolerance was reached.
+        residual_px: Final RMS matching distance, pixels.
+        initial_residual_px: RMS matching distance before the solve, pixels.
+        energies: Total energy after each iteration (world units squared).
+        seconds: Wall time of the solve.
+        iteration_seconds: Wall time of each iteration.
+        qp_iterations: OSQP iterations over all updates.
+        active_bounds: Bounds active at the last update (scales, IK limits).
+        pairs: ``(curve, stroke)`` pairs matched.
+        warnings: Human-readable notes.
+    """
+
+    pose: RigPose
+    iterations: int
+    converged: bool
+    residual_px: float
+    initial_residual_px: float
+    energies: tuple[float, ...]
+    seconds: float
+    iteration_seconds: tuple[float, ...]
+    qp_iterations: int
+    active_bounds: tuple[str, ...]
+    pairs: tuple[tuple[int, int], ...]
+    warnings: tuple[str, ...] = ()
+
+
+def _rms_px(camera: Camera, x: np.ndarray, corr: Correspondences) -> float:
+    res = corr.residuals(camera.project(x))
+    return float(np.sqrt(corr.weights @ np.sum(res * res, axis=1)))
+
+
+def _objective(camera: Camera, x: np.ndarray, z_old: np.ndarray, z_new: np.ndarray,
+               corr: Correspondences, coarse: Coarsening, z_start: np.ndarray, rest_d: np.ndarray,
+               lambdas: tuple[float, float, float], ppu: float) -> float:
+    match = _rms_px(camera, x, corr) ** 2 / ppu**2
+    reg = full_regularizer_value(camera, z_old, z_new, coarse, z_start, rest_d, lambdas)
+    return match + sum(reg.values())
+
+
+def solve_abstraction(problem: AbstractionProblem,
+                      options: SolveOptions | None = None) -> SolveResult:
+    """Pose the rig so that its abstraction's projection matches the strokes.
+
+    Args:
+        problem: The problem (see :class:`AbstractionProblem`).
+        options: Settings (the paper's defaults when None).
+
+    Returns:
+        The optimized pose and diagnostics.
+
+    Raises:
+        InputError: Bad input (e.g. abstraction behind the view).
+        SolverError: An update QP could not be solved.
+    """
+    opt = SolveOptions() if options is None else options
+    t_start = time.perf_counter()
+    rig, cam, layout, coarse = problem.rig, problem.camera, problem.layout, problem.coarse
+    space = rig.space
+    pose = project_to_limits(problem.start, space, opt.limits) if opt.bounded else problem.start
+    x, z = rig.evaluate(pose)
+    rest_d = pair_distances(z, coarse)
+    z_start = z
+    depth = float(np.mean(cam.depth(x)))
+    if depth <= 0 and cam.is_perspective:
+        raise InputError("The abstraction is behind the view: look at the character.")
+    ppu = cam.pixels_per_unit(max(depth, 1e-6))
+    px = cam.project(x)
+    curves = [px[layout.curve(i)] for i in range(layout.n_curves)]
+    pairs = assign_strokes(curves, list(problem.strokes), opt.assignment)
+    strokes = list(problem.strokes)
+    corr0 = build_correspondences(px, layout, strokes, pairs, opt.correspondence)
+    initial = _rms_px(cam, x, corr0)
+    energies, times = [], []
+    qp_iters, active, converged, warnings = 0, (), False, []
+    it, damping = 0, 1.0
+    while it < opt.max_iterations:
+        it += 1
+        t_it = time.perf_counter()
+        x, z, jx, jz = rig.jacobians(pose)
+        corr = build_correspondences(cam.project(x), layout, strokes, pairs, opt.correspondence)
+        hm, gm, em = match_term(cam, x, jx, corr, ppu)
+        lambdas = opt.lambdas(damping)
+        lambdas = (lambdas[0], opt.lambda_plane, lambdas[2])
+        hr, gr, er = regularizer_terms(cam, z, jz, coarse, z_start, rest_d, lambdas)
+        model = QuadraticModel(hm + hr, gm + gr, {"E_match": em, **er})
+        energy = model.energy
+        if opt.bounded:
+            sol = solve_step_qp(build_step_qp(model, space, pose, opt.limits, problem.names))
+            dp, active = sol.dp, sol.active
+            qp_iters += sol.iterations
+        else:
+            dp = solve_step_unbounded(model)
+        alpha, accepted = 1.0, None
+        for _ in range(opt.line_search_steps):
+            cand = space.step(pose, alpha * dp)
+            if opt.bounded:
+                cand = project_to_limits(cand, space, opt.limits)
+            xc, zc = rig.evaluate(cand)
+            e_c = _objective(cam, xc, z, zc, corr, coarse, z_start, rest_d,
+                             lambdas, ppu)
+            if np.isfinite(e_c) and e_c <= energy:
+                accepted = (cand, e_c)
+                break
+            alpha *= 0.5
+        times.append(time.perf_counter() - t_it)
+        if accepted is None:
+            energies.append(energy)
+            if damping < 1.0:
+                damping = min(1.0, 2.0 * damping)
+                continue
+            converged = True
+            break
+        pose, new_energy = accepted
+        if alpha == 1.0:
+            damping = max(opt.min_damping, damping * opt.damping_decay)
+        energies.append(new_energy)
+        if energy - new_energy <= opt.tolerance * max(energy, 1e-300) \
+                or alpha * np.abs(dp).max() < 1e-9:
+            converged = True
+            break
+    x, _ = rig.evaluate(pose)
+    final = build_correspondences(cam.project(x), layout, strokes, pairs, opt.correspondence)
+    if len(strokes) > layout.n_curves:
+        warnings.append(f"{len(strokes) - layout.n_curves} stroke(s) had no curve to match.")
+    if not converged:
+        warnings.append(f"Stopped after {it} iterations before converging.")
+    return SolveResult(pose, it, converged, _rms_px(cam, x, final), initial, tuple(energies),
+                       time.perf_counter() - t_start, tuple(times), qp_iters, tuple(active),
+                       pairs, tuple(warnings))
