@@ -1,0 +1,81 @@
+"""k-means coarsening (Eq. 12): exact at k = V, close at k << V, independent of resolution."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gesture_pose.core.abstraction.coarsening import coarsen, neighbour_pairs
+from gesture_pose.core.abstraction.energies import pair_distances, regularizer_terms
+from gesture_pose.core.abstraction.parameters import ParameterSpace, RigPose
+from gesture_pose.core.abstraction.rig import (
+    descendant_matrix,
+    lbs_weighted_rest,
+    point_jacobian,
+    pose_bones,
+)
+from gesture_pose.core.rotations import exp_map
+from tests.core.fixtures import front_camera, tree_skeleton
+from tests.core.test_abstraction_solver import tube_mesh
+
+LAMBDAS = (0.5, 0.01, 0.001)
+
+
+def _mesh_jacobian(rings: int, segments: int):
+    skel = tree_skeleton()
+    verts, _, weights = tube_mesh(skel, rings=rings, segments=segments)
+    space = ParameterSpace.from_masks(skel.parents, np.ones(6, bool), np.ones(6, bool))
+    rng = np.random.default_rng(7)
+    pose = RigPose(exp_map(rng.normal(scale=0.3, size=(6, 3))), np.ones(6), np.zeros((6, 3)))
+    posed = pose_bones(skel, pose)
+    y = lbs_weighted_rest(verts, weights)
+    jac = point_jacobian(posed, y, space, pose, descendant_matrix(skel))
+    z = np.einsum("nij,mnj->mi", posed.skinning[:, :3, :], y)
+    return z, jac, space
+
+
+def _full_reference(z, jac, z_start, dp):
+    """The regularizers written directly as sums over every vertex, for a step ``dp``."""
+    cam = front_camera()
+    dz = jac @ dp
+    v = len(z)
+    w_pose = LAMBDAS[0] / v * np.sum(dz * dz)
+    depth = (z + dz - z_start) @ cam.forward
+    w_plane = LAMBDAS[1] / v * np.sum(depth**2)
+    return w_pose + w_plane
+
+
+def test_coarsened_regularizers_equal_full_when_k_is_vertex_count() -> None:
+    z, jac, space = _mesh_jacobian(rings=4, segments=6)
+    coarse = coarsen(z, k=len(z))
+    assert len(coarse.indices) == len(z) and np.all(coarse.masses == 1)
+    rng = np.random.default_rng(1)
+    z_start = z - 0.01 * rng.normal(size=z.shape)
+    h, g, e = regularizer_terms(front_camera(), z, jac, coarse, z_start,
+                                pair_distances(z, coarse), (LAMBDAS[0], LAMBDAS[1], 0.0))
+    for _ in range(3):
+        dp = rng.normal(scale=0.05, size=space.n_params)
+        model = sum(e.values()) + 2 * g @ dp + dp @ h @ dp
+        np.testing.assert_allclose(model, _full_reference(z, jac, z_start, dp), rtol=1e-10)
+
+
+def test_coarse_regularizer_approximates_full_and_ignores_resolution() -> None:
+    values = []
+    for rings, segments in ((8, 12), (24, 32)):
+        z, jac, space = _mesh_jacobian(rings, segments)
+        coarse = coarsen(z, k=200)
+        assert len(coarse.indices) <= 200 and coarse.masses.sum() == len(z)
+        rng = np.random.default_rng(2)
+        dp = rng.normal(scale=0.05, size=space.n_params)
+        h, _, _ = regularizer_terms(front_camera(), z[coarse.indices], jac[coarse.indices],
+                                    coarse, z[coarse.indices], np.zeros(len(coarse.pairs)),
+                                    (LAMBDAS[0], 0.0, 0.0))
+        full = LAMBDAS[0] / len(z) * np.sum((jac @ dp) ** 2)
+        np.testing.assert_allclose(dp @ h @ dp, full, rtol=0.1)
+        values.append(h.shape)
+    assert values[0] == values[1]  # same problem size at 576 and 4608 vertices
+
+
+def test_neighbour_pairs_are_unique_and_undirected() -> None:
+    pts = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [10, 0, 0]])
+    pairs = neighbour_pairs(pts, neighbours=1)
+    np.testing.assert_array_equal(pairs, [[0, 1], [1, 2], [2, 3]])
