@@ -202,13 +202,17 @@ def strokes_to_2d(strokes: Sequence[SketchStroke | np.ndarray], camera: Camera) 
         Core strokes in pixels, one per input stroke.
 
     Raises:
-        InputError: A stroke lies (partly) behind the camera or is a single point.
+        InputError: A stroke has NaN points, lies (partly) behind the camera or is a single
+            point.
     """
     out = []
     for k, s in enumerate(strokes):
         pts = s.points_world if isinstance(s, SketchStroke) else np.asarray(s, dtype=float)
         where = (f"stroke {s.index} of layer '{s.layer_name}'"
                  if isinstance(s, SketchStroke) else f"stroke {k}")
+        if not np.all(np.isfinite(pts)):
+            raise InputError(f"The {where} has NaN or infinite coordinates: delete it and "
+                             "draw it again.")
         pix = camera.project(pts.reshape(-1, 3))
         if not np.all(np.isfinite(pix)):
             raise InputError(f"The {where} lies behind the view: draw it in front of the "
