@@ -1,0 +1,350 @@
+"""The environment as triangle meshes: ray casts, seats (Section 4.1.2) and a distance grid.
+
+All geometry is world space with ``up`` the world's up axis. Ray casts use the
+Moller-Trumbore test vectorized over all triangles. A *seat* is found by casting the eye
+ray through the drawn pelvis (or contact dot): hits on surfaces facing up (normal within
+30 degrees of up) whose height above the floor below them lies within 0.5-1.5 seated
+hip heights (the knee height of the character: sitting, the hips are at knee height)
+are candidates; the nearest is grown into a flat region of connected up-facing
+triangles, and Eq. 3's centerness (distance to the region boundary over its maximum)
+picks a central spot near the hit that leaves the body collision-free.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from ..exceptions import InputError
+from ..rotations import normalize
+
+UP_ANGLE = np.radians(30.0)
+SEAT_RANGE = (0.5, 1.5)
+
+
+@dataclass(frozen=True)
+class Hit:
+    """One ray hit.
+
+    Attributes:
+        distance: Distance along the ray, world units.
+        point: Hit point, shape ``(3,)``.
+        normal: Unit face normal facing the ray's origin, shape ``(3,)``.
+        triangle: Triangle index.
+        object_index: Index of the mesh the triangle belongs to.
+    """
+
+    distance: float
+    point: np.ndarray
+    normal: np.ndarray
+    triangle: int
+    object_index: int
+
+
+@dataclass(frozen=True)
+class Environment:
+    """Static triangle meshes around the character.
+
+    Attributes:
+        vertices: World vertices, shape ``(V, 3)``.
+        triangles: Vertex indices, shape ``(T, 3)``.
+        object_ids: Mesh index of each triangle, shape ``(T,)``.
+        object_names: Mesh names.
+        up: World up, shape ``(3,)``.
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    object_ids: np.ndarray
+    object_names: tuple[str, ...] = ()
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+
+    def __post_init__(self) -> None:
+        """Validate shapes."""
+        v = np.asarray(self.vertices, float).reshape(-1, 3)
+        t = np.asarray(self.triangles, int).reshape(-1, 3)
+        if len(t) and (t.min() < 0 or t.max() >= len(v)):
+            raise InputError("Environment triangles index missing vertices.")
+        object.__setattr__(self, "vertices", v)
+        object.__setattr__(self, "triangles", t)
+        object.__setattr__(self, "object_ids", np.asarray(self.object_ids, int).reshape(-1))
+
+    @property
+    def corners(self) -> np.ndarray:
+        """Triangle corners, shape ``(T, 3, 3)``."""
+        return self.vertices[self.triangles]
+
+    @property
+    def normals(self) -> np.ndarray:
+        """Unit triangle normals (right-hand winding), shape ``(T, 3)``."""
+        c = self.corners
+        return normalize(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]))
+
+    def raycast(self, origin: np.ndarray, direction: np.ndarray) -> list[Hit]:
+        """All hits of one ray, nearest first (Moller-Trumbore over every triangle).
+
+        Args:
+            origin: Ray origin, shape ``(3,)``.
+            direction: Ray direction, shape ``(3,)``.
+
+        Returns:
+            Hits sorted by distance (both triangle sides count).
+        """
+        if len(self.triangles) == 0:
+            return []
+        o, d = np.asarray(origin, float), normalize(np.asarray(direction, float))
+        c = self.corners
+        e1, e2 = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]
+        pv = np.cross(d, e2)
+        det = np.einsum("ij,ij->i", e1, pv)
+        ok = np.abs(det) > 1e-12
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        tv = o - c[:, 0]
+        u = np.einsum("ij,ij->i", tv, pv) * inv
+        qv = np.cross(tv, e1)
+        v = (qv @ d) * inv
+        t = np.einsum("ij,ij->i", e2, qv) * inv
+        hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-9)
+        idx = np.flatnonzero(hit)
+        idx = idx[np.argsort(t[idx])]
+        n = self.normals[idx]
+        n = np.where((n @ d)[:, None] > 0, -n, n)
+        return [Hit(float(t[i]), o + t[i] * d, n[k], int(i), int(self.object_ids[i]))
+                for k, i in enumerate(idx)]
+
+    def height_above_floor(self, point: np.ndarray) -> float:
+        """Height of ``point`` above the lowest surface below it (or the lowest vertex)."""
+        up = self.up
+        below = [h for h in self.raycast(np.asarray(point) - up * 1e-4, -up)
+                 if h.normal @ up > np.cos(UP_ANGLE)]
+        base = (below[-1].point @ up if below else float(np.min(self.vertices @ up)))
+        return float(np.asarray(point) @ up - base)
+
+
+@dataclass(frozen=True)
+class DistanceGrid:
+    """Unsigned distance to the environment's surfaces sampled on a regular grid.
+
+    Attributes:
+        origin: World position of voxel ``(0, 0, 0)``, shape ``(3,)``.
+        spacing: Voxel size, world units.
+        values: Distances, shape ``(nx, ny, nz)``.
+    """
+
+    origin: np.ndarray
+    spacing: float
+    values: np.ndarray
+
+    def sample(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Trilinear distance and its gradient at points (far values outside the grid).
+
+        Args:
+            points: World points, shape ``(..., 3)``.
+
+        Returns:
+            ``(distance (...), gradient (..., 3))``.
+        """
+        g = (np.asarray(points, float) - self.origin) / self.spacing
+        shape = np.array(self.values.shape)
+        inside = np.all((g >= 0) & (g <= shape - 1), axis=-1)
+        g = np.clip(g, 0, shape - 1 - 1e-9)
+        i0 = np.floor(g).astype(int)
+        f = g - i0
+        v = self.values
+        dist = np.zeros(g.shape[:-1])
+        grad = np.zeros(g.shape)
+        for dx in (0, 1):
+            wx = f[..., 0] if dx else 1 - f[..., 0]
+            sx = 1.0 if dx else -1.0
+            for dy in (0, 1):
+                wy = f[..., 1] if dy else 1 - f[..., 1]
+                sy = 1.0 if dy else -1.0
+                for dz in (0, 1):
+                    wz = f[..., 2] if dz else 1 - f[..., 2]
+                    sz = 1.0 if dz else -1.0
+                    val = v[i0[..., 0] + dx, i0[..., 1] + dy, i0[..., 2] + dz]
+                    dist += wx * wy * wz * val
+                    grad[..., 0] += sx * wy * wz * val
+                    grad[..., 1] += wx * sy * wz * val
+                    grad[..., 2] += wx * wy * sz * val
+        far = 10.0 * self.spacing + v.max()
+        dist = np.where(inside, dist, far)
+        grad = np.where(inside[..., None], grad / self.spacing, 0.0)
+        return dist, grad
+
+
+def surface_samples(env: Environment, spacing: float, lo: np.ndarray,
+                    hi: np.ndarray) -> np.ndarray:
+    """Points covering the triangles inside a box, at most ``spacing`` apart, ``(m, 3)``."""
+    c = env.corners
+    keep = np.all(c.max(1) >= lo, 1) & np.all(c.min(1) <= hi, 1)
+    out = [c[keep].reshape(-1, 3)]
+    for tri in c[keep]:
+        e1, e2 = tri[1] - tri[0], tri[2] - tri[0]
+        k = int(np.ceil(max(np.linalg.norm(e1), np.linalg.norm(e2)) / spacing)) + 1
+        a, b = np.meshgrid(np.arange(k + 1), np.arange(k + 1), indexing="ij")
+        m = a + b <= k
+        pts = tri[0] + (a[m][:, None] * e1 + b[m][:, None] * e2) / k
+        out.append(pts[np.all((pts >= lo - spacing) & (pts <= hi + spacing), 1)])
+    return np.concatenate(out)
+
+
+def distance_grid(env: Environment, center: np.ndarray, half_size: float,
+                  spacing: float = 0.04) -> DistanceGrid:
+    """Distance grid of a cube around ``center``.
+
+    Args:
+        env: The environment.
+        center: Cube centre, shape ``(3,)``.
+        half_size: Half the cube's edge, world units.
+        spacing: Voxel size, world units (surface samples are half as far apart).
+
+    Returns:
+        The grid (all distances ``4 * half_size`` when the cube holds no surface).
+    """
+    lo = np.asarray(center, float) - half_size
+    hi = np.asarray(center, float) + half_size
+    n = int(np.ceil(2 * half_size / spacing)) + 1
+    axes = [lo[k] + spacing * np.arange(n) for k in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    samples = surface_samples(env, spacing / 2, lo, hi)
+    if len(samples) == 0:
+        return DistanceGrid(lo, spacing, np.full((n, n, n), 4 * half_size))
+    d, _ = cKDTree(samples).query(grid, workers=1)
+    return DistanceGrid(lo, spacing, d.reshape(n, n, n))
+
+
+def _region(env: Environment, tri: int, height_tol: float = 0.03,
+            max_radius: float = 1.5) -> np.ndarray:
+    """Connected up-facing triangles at the height of ``tri`` (region growing), ``(k,)``."""
+    up = env.up
+    n = env.normals
+    c = env.corners
+    h = c.mean(1) @ up
+    flat = (np.abs(n @ up) > np.cos(UP_ANGLE)) & (np.abs(h - h[tri]) < height_tol)
+    flat &= np.linalg.norm(c.mean(1) - c[tri].mean(0), axis=1) < max_radius
+    cand = np.flatnonzero(flat)
+    # Triangles sharing a vertex position are neighbours.
+    key = np.round(env.vertices[env.triangles[cand]].reshape(-1, 3) / 1e-5).astype(np.int64)
+    _, vid = np.unique(key, axis=0, return_inverse=True)
+    vid = vid.reshape(-1, 3)
+    rows = np.repeat(np.arange(len(cand)), 3)
+    m = coo_matrix((np.ones(rows.size), (rows, vid.ravel())))
+    adj = (m @ m.T).tocoo()
+    _, lab = connected_components(adj, directed=False)
+    return cand[lab == lab[np.flatnonzero(cand == tri)[0]]]
+
+
+def centerness(env: Environment, region: np.ndarray, spacing: float = 0.02
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Sample points of a flat region and their centerness (Eq. 3).
+
+    The centerness of a point is its distance to the region's boundary divided by the
+    largest such distance, 1 at the most central point and 0 on the boundary.
+
+    Returns:
+        ``(points (m, 3), centerness (m,))``.
+    """
+    up = env.up
+    tris = env.triangles[region]
+    corners = env.vertices[tris]
+    lo, hi = corners.reshape(-1, 3).min(0), corners.reshape(-1, 3).max(0)
+    # Boundary edges: used by one region triangle only.
+    key = np.round(env.vertices / 1e-5).astype(np.int64)
+    _, vid = np.unique(key, axis=0, return_inverse=True)
+    e = np.sort(vid[tris][:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    edges_xyz = corners[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2, 3)
+    _, inv, cnt = np.unique(e, axis=0, return_inverse=True, return_counts=True)
+    border = edges_xyz[cnt[inv.ravel()] == 1]
+    axes = [np.arange(lo[k], hi[k] + spacing, spacing) if hi[k] - lo[k] > 1e-6
+            else np.array([lo[k]]) for k in range(3)]
+    pts = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    # Keep points above a region triangle (barycentric test in the ground plane).
+    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
+    basis = np.linalg.svd(np.eye(3) - np.outer(up, up))[0][:, :2]
+    P2, A, B, C = pts @ basis, a @ basis, b @ basis, c @ basis
+    v0, v1 = B - A, C - A
+    den = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
+    rel = P2[:, None] - A[None]
+    s = (rel[..., 0] * v1[:, 1] - rel[..., 1] * v1[:, 0]) / np.where(den == 0, 1, den)
+    t = (v0[:, 0] * rel[..., 1] - v0[:, 1] * rel[..., 0]) / np.where(den == 0, 1, den)
+    inside = (s >= -1e-9) & (t >= -1e-9) & (s + t <= 1 + 1e-9)
+    keep = inside.any(1)
+    tri_of = np.argmax(inside, 1)[keep]
+    pts = pts[keep]
+    # Lift onto the triangles' plane.
+    nrm = env.normals[region][tri_of]
+    pts = pts - up * (np.einsum("ij,ij->i", pts - a[tri_of], nrm) / (nrm @ up))[:, None]
+    if len(pts) == 0:
+        return corners.mean(1), np.zeros(len(region))
+    from .capsules import point_segment_distance
+    d = point_segment_distance(pts[:, None], border[None, :, 0], border[None, :, 1]).min(1)
+    return pts, d / max(d.max(), 1e-12)
+
+
+@dataclass(frozen=True)
+class Seat:
+    """Where the character sits.
+
+    Attributes:
+        point: Chosen spot on the seat, shape ``(3,)``.
+        hit: Where the eye ray met the seat, shape ``(3,)``.
+        normal: Seat normal, shape ``(3,)``.
+        object_index: Mesh of the seat.
+        centerness: Eq. 3 at the chosen spot.
+        region: Triangles of the seat region, shape ``(k,)``.
+    """
+
+    point: np.ndarray
+    hit: np.ndarray
+    normal: np.ndarray
+    object_index: int
+    centerness: float
+    region: np.ndarray
+
+
+def find_seat(env: Environment, origin: np.ndarray, direction: np.ndarray,
+              seated_hip_height: float, hip_radius: float,
+              grid: DistanceGrid | None = None, seat_range=SEAT_RANGE,
+              sigma: float = 0.15) -> Seat | None:
+    """Sit location along an eye ray (Section 4.1.2).
+
+    Args:
+        env: The environment.
+        origin: Eye ray origin, shape ``(3,)``.
+        direction: Eye ray direction, shape ``(3,)``.
+        seated_hip_height: The character's knee height (hip height when seated), world
+            units; seats must be ``seat_range`` times this above the floor.
+        hip_radius: Clearance the hips need above the seat and around them.
+        grid: Distance grid used to reject spots where the hips would collide.
+        seat_range: Allowed seat heights in units of ``seated_hip_height``.
+        sigma: Distance scale (world units) trading closeness to the hit for centerness.
+
+    Returns:
+        The seat, or None when the ray meets no suitable surface.
+    """
+    up = env.up
+    for hit in env.raycast(origin, direction):
+        if hit.normal @ up < np.cos(UP_ANGLE):
+            continue
+        height = env.height_above_floor(hit.point + up * 1e-3)
+        lo, hi = seat_range
+        if not lo * seated_hip_height <= height <= hi * seated_hip_height:
+            continue
+        region = _region(env, hit.triangle)
+        pts, cent = centerness(env, region)
+        score = cent * np.exp(-np.sum((pts - hit.point) ** 2, 1) / (2 * sigma**2))
+        order = np.argsort(-score)
+        best = order[0]
+        if grid is not None:
+            hips = pts[order] + up * (hip_radius * 1.05)
+            free = grid.sample(hips)[0] >= hip_radius * 0.95
+            if np.any(free):
+                best = order[np.argmax(free)]
+        return Seat(pts[best], hit.point, hit.normal, hit.object_index, float(cent[best]),
+                    region)
+    return None

@@ -1,0 +1,325 @@
+"""The reconstruction objective of Lin et al. (2012), Eqs. 4-11, for a whole population.
+
+``E = w_p E_proj + w_b E_bal + w_a E_att (+ w_c E_col in refinement)`` with the paper's
+weights 1.0, 0.5 and 5.0:
+
+- ``E_proj`` (Eqs. 4-6): for every drawn stick edge, the squared difference between the
+  unit direction of the projected 3D edge and the drawn one, plus ``w = 0.1`` times the
+  squared distance (in units of the mean drawn edge length) between every projected joint
+  and its drawn node.
+- ``E_bal`` (Eqs. 7-8): squared ground-plane distance (in units of the character's
+  height) from the centre of mass (bone masses from the mesh volume around each bone) to
+  the support polygon, the convex hull of the environment contacts; zero inside.
+- ``E_att`` (Eqs. 9-10): a joint pinned to a limb stays at its parameter along the limb
+  (Eq. 9); a joint pinned to the environment stays on the contact plane (Eq. 10).
+- ``E_col`` (Eq. 11): squared capsule penetrations, body against body and against the
+  environment's distance grid, in units of 5 % of the height.
+
+Every term returns its gradient with respect to the bones' heads and tails; chained with
+:meth:`.kinematics.PoseModel.jacobian` this gives the analytic gene gradient.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError
+
+from ..camera import Camera
+from .capsules import Capsules, axis_samples, body_collision
+from .environment import DistanceGrid
+from .graph import StickFigure
+from .kinematics import PoseModel
+
+
+@dataclass(frozen=True)
+class EnvPin:
+    """A joint attached to the environment.
+
+    Attributes:
+        joint: Stick joint index.
+        target: Contact point the joint is placed on at the end, shape ``(3,)``.
+        normal: Unit normal of the contact plane, shape ``(3,)``.
+    """
+
+    joint: int
+    target: np.ndarray
+    normal: np.ndarray
+
+
+@dataclass(frozen=True)
+class LimbPin:
+    """A joint attached to a point of a stick edge of the body (Eq. 9).
+
+    Attributes:
+        joint: Stick joint index.
+        limb: Joint indices ``(a, b)`` of the stick edge.
+        s: Parameter along the edge, 0 at ``a`` and 1 at ``b``.
+    """
+
+    joint: int
+    limb: tuple[int, int]
+    s: float
+
+
+@dataclass(frozen=True)
+class Weights:
+    """Term weights (the paper's: projection 1.0, balance 0.5, attachment 5.0)."""
+
+    projection: float = 1.0
+    balance: float = 0.5
+    attachment: float = 5.0
+    collision: float = 5.0
+    position: float = 0.1
+
+
+def project_jacobian(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels of world points and the projection's Jacobian.
+
+    Args:
+        camera: The view.
+        points: World points, shape ``(..., 3)``.
+
+    Returns:
+        ``(pixels (..., 2), d pixels / d points (..., 2, 3))``.
+    """
+    M = camera.full_matrix
+    clip = points @ M[:, :3].T + M[:, 3]
+    w = clip[..., 3:4]
+    size = np.array([camera.width, camera.height], float) / 2.0
+    px = (clip[..., :2] / w + 1.0) * size
+    J = (M[None, :2, :3] * w[..., None] - clip[..., :2, None] * M[3, :3]) / (w[..., None] ** 2)
+    return px, J * size[:, None]
+
+
+def _hull(points2d: np.ndarray) -> np.ndarray:
+    """Support polygon vertices (counter-clockwise), ``(k, 2)``; points or a segment too."""
+    pts = np.unique(np.round(points2d, 9), axis=0)
+    if len(pts) >= 3:
+        try:
+            return pts[ConvexHull(pts).vertices]
+        except QhullError:
+            pass
+    if len(pts) >= 2:
+        d = pts - pts.mean(0)
+        axis = np.linalg.svd(d)[2][0]
+        proj = d @ axis
+        return pts[[np.argmin(proj), np.argmax(proj)]]
+    return pts
+
+
+def polygon_offset(q: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Vector from the closest point of a convex polygon to ``q``; zero inside.
+
+    Args:
+        q: Points, shape ``(P, 2)``.
+        poly: Counter-clockwise polygon (or segment/point), shape ``(k, 2)``.
+
+    Returns:
+        Offsets, shape ``(P, 2)``.
+    """
+    a = poly
+    b = np.roll(poly, -1, axis=0)
+    d = b - a
+    t = np.clip(np.einsum("pkd,kd->pk", q[:, None] - a[None], d) /
+                np.maximum((d * d).sum(1), 1e-18), 0, 1)
+    closest = a[None] + t[..., None] * d[None]
+    off = q[:, None] - closest
+    k = np.argmin((off**2).sum(-1), axis=1)
+    out = off[np.arange(len(q)), k]
+    if len(poly) >= 3:
+        cross = d[None, :, 0] * (q[:, None, 1] - a[None, :, 1]) - d[None, :, 1] * (
+            q[:, None, 0] - a[None, :, 0])
+        inside = np.all(cross >= 0, axis=1)
+        out[inside] = 0.0
+    return out
+
+
+@dataclass(frozen=True)
+class StickObjective:
+    """Everything the energy of a pose depends on.
+
+    Attributes:
+        model: Genes -> bones.
+        camera: The view the figure was drawn in.
+        stick: The matched drawing (target joint pixels).
+        height: Character height, world units (length unit of the energies).
+        masses: Bone masses (any unit), shape ``(n,)``.
+        capsules: Body capsules.
+        env_capsules: Capsules checked against the environment, shape ``(c,)`` bool.
+        grid: Environment distance grid, or None.
+        support: Contact points forming the support polygon, shape ``(k, 3)``.
+        env_pins: Joints pinned to the environment.
+        limb_pins: Joints pinned to the body.
+        weights: Term weights.
+        up: World up, shape ``(3,)``.
+    """
+
+    model: PoseModel
+    camera: Camera
+    stick: StickFigure
+    height: float
+    masses: np.ndarray
+    capsules: Capsules
+    env_capsules: np.ndarray
+    grid: DistanceGrid | None = None
+    support: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    env_pins: tuple[EnvPin, ...] = ()
+    limb_pins: tuple[LimbPin, ...] = ()
+    weights: Weights = field(default_factory=Weights)
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    _edges: np.ndarray = field(init=False, repr=False)
+    _dirs: np.ndarray = field(init=False, repr=False)
+    _px_scale: float = field(init=False, repr=False)
+    _ground: np.ndarray = field(init=False, repr=False)
+    _poly: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        """Cache drawn edge directions, the pixel scale and the support polygon."""
+        edges = self.stick.drawn_edges()
+        vec = self.stick.points[edges[:, 1]] - self.stick.points[edges[:, 0]]
+        lengths = np.linalg.norm(vec, axis=1)
+        object.__setattr__(self, "_edges", edges)
+        object.__setattr__(self, "_dirs", vec / np.maximum(lengths, 1e-9)[:, None])
+        object.__setattr__(self, "_px_scale", float(max(lengths.mean(), 1.0)))
+        up = np.asarray(self.up, float)
+        ground = np.linalg.svd(np.eye(3) - np.outer(up, up))[0][:, :2]
+        object.__setattr__(self, "_ground", ground)
+        sup = np.asarray(self.support, float).reshape(-1, 3)
+        object.__setattr__(self, "_poly", _hull(sup @ ground) if len(sup) else np.zeros((0, 2)))
+
+    # -- terms ---------------------------------------------------------------------------
+
+    def _projection(self, joints, grad):
+        q, Jq = project_jacobian(self.camera, joints)
+        a, b = self._edges[:, 0], self._edges[:, 1]
+        u = q[:, b] - q[:, a]
+        n = np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-9)
+        uh = u / n
+        diff = uh - self._dirs
+        e_dir = np.sum(diff**2, axis=(1, 2))
+        present = self.stick.present
+        off = (q[:, present] - self.stick.points[present]) / self._px_scale
+        e_pos = np.sum(off**2, axis=(1, 2))
+        energy = e_dir + self.weights.position * e_pos
+        if not grad:
+            return energy, None
+        gu = 2.0 * (diff - uh * np.sum(diff * uh, -1, keepdims=True)) / n
+        gq = np.zeros_like(q)
+        np.add.at(gq, (slice(None), b), gu)
+        np.add.at(gq, (slice(None), a), -gu)
+        gq[:, present] += 2.0 * self.weights.position * off / self._px_scale
+        return energy, np.einsum("pjk,pjkd->pjd", gq, Jq)
+
+    def _balance(self, heads, tails, grad):
+        P = heads.shape[0]
+        if len(self._poly) == 0:
+            return np.zeros(P), None
+        m = self.masses / self.masses.sum()
+        com = np.einsum("n,pnd->pd", m, 0.5 * (heads + tails))
+        off = polygon_offset(com @ self._ground, self._poly)
+        energy = np.sum(off**2, 1) / self.height**2
+        if not grad:
+            return energy, None
+        gc = (2.0 * off / self.height**2) @ self._ground.T
+        g = 0.5 * m[None, :, None] * gc[:, None, :]
+        return energy, g
+
+    def _attachment(self, joints, grad):
+        energy = np.zeros(joints.shape[0])
+        g = np.zeros_like(joints) if grad else None
+        h2 = self.height**2
+        for pin in self.env_pins:
+            dist = (joints[:, pin.joint] - pin.target) @ pin.normal
+            energy += dist**2 / h2
+            if grad:
+                g[:, pin.joint] += 2.0 * dist[:, None] * pin.normal / h2
+        for pin in self.limb_pins:
+            a, b = pin.limb
+            target = (1 - pin.s) * joints[:, a] + pin.s * joints[:, b]
+            d = joints[:, pin.joint] - target
+            energy += np.sum(d**2, 1) / h2
+            if grad:
+                g[:, pin.joint] += 2 * d / h2
+                g[:, a] -= 2 * (1 - pin.s) * d / h2
+                g[:, b] -= 2 * pin.s * d / h2
+        return energy, g
+
+    def _collision(self, heads, tails, grad):
+        scale = (0.05 * self.height) ** 2
+        e_body, gh, gt = body_collision(self.capsules, heads, tails, grad)
+        energy = e_body
+        if self.grid is not None and np.any(self.env_capsules):
+            bones = self.capsules.bones[self.env_capsules]
+            radii = self.capsules.radii[self.env_capsules]
+            u = axis_samples(5)
+            pts = (heads[:, bones, None] * (1 - u)[:, None] + tails[:, bones, None] *
+                   u[:, None])
+            d, gd = self.grid.sample(pts)
+            pen = np.maximum(radii[None, :, None] - d, 0.0)
+            energy = energy + np.sum(pen**2, axis=(1, 2))
+            if grad:
+                gp = -2.0 * pen[..., None] * gd
+                np.add.at(gh, (slice(None), bones), np.einsum("pcmd,m->pcd", gp, 1 - u))
+                np.add.at(gt, (slice(None), bones), np.einsum("pcmd,m->pcd", gp, u))
+        if grad:
+            return energy / scale, gh / scale, gt / scale
+        return energy / scale, None, None
+
+    # -- public ----------------------------------------------------------------------------
+
+    def energies(self, heads: np.ndarray, tails: np.ndarray, collision: bool = True,
+                 grad: bool = False) -> tuple[np.ndarray, dict, np.ndarray | None,
+                                              np.ndarray | None]:
+        """Weighted total energy of posed bones.
+
+        Args:
+            heads: Posed heads, shape ``(P, n, 3)``.
+            tails: Posed tails, shape ``(P, n, 3)``.
+            collision: Include Eq. 11.
+            grad: Also return the gradients with respect to heads and tails.
+
+        Returns:
+            ``(E (P,), {term: (P,)}, dE/dheads (P, n, 3), dE/dtails (P, n, 3))``.
+        """
+        fig = self.model.figure
+        joints = fig.joint_positions(heads, tails)
+        w = self.weights
+        e_p, gj_p = self._projection(joints, grad)
+        e_b, g_b = self._balance(heads, tails, grad)
+        e_a, gj_a = self._attachment(joints, grad)
+        terms = {"projection": e_p, "balance": e_b, "attachment": e_a}
+        total = w.projection * e_p + w.balance * e_b + w.attachment * e_a
+        if collision:
+            e_c, gh_c, gt_c = self._collision(heads, tails, grad)
+            terms["collision"] = e_c
+            total = total + w.collision * e_c
+        if not grad:
+            return total, terms, None, None
+        gj = w.projection * gj_p + w.attachment * gj_a
+        gh, gt = np.zeros_like(heads), np.zeros_like(tails)
+        tail_mask = fig.joint_at_tail
+        np.add.at(gt, (slice(None), fig.joint_bones[tail_mask]), gj[:, tail_mask])
+        np.add.at(gh, (slice(None), fig.joint_bones[~tail_mask]), gj[:, ~tail_mask])
+        if g_b is not None:
+            gh += w.balance * g_b
+            gt += w.balance * g_b
+        if collision:
+            gh += w.collision * gh_c
+            gt += w.collision * gt_c
+        return total, terms, gh, gt
+
+    def evaluate(self, genes: np.ndarray, collision: bool = True) -> tuple[np.ndarray, dict]:
+        """Energies of a population, ``(P, G) -> ((P,), {term: (P,)})``."""
+        heads, tails, _ = self.model.forward(genes)
+        total, terms, _, _ = self.energies(heads, tails, collision)
+        return total, terms
+
+    def value_and_grad(self, x: np.ndarray, collision: bool = True
+                       ) -> tuple[float, np.ndarray]:
+        """Energy and analytic gradient of one gene vector ``(G,)``."""
+        heads, tails, Jh, Jt = self.model.jacobian(x)
+        total, _, gh, gt = self.energies(heads[None], tails[None], collision, grad=True)
+        g = np.einsum("nd,ndg->g", gh[0], Jh) + np.einsum("nd,ndg->g", gt[0], Jt)
+        return float(total[0]), g

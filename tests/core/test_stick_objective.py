@@ -1,0 +1,184 @@
+"""Eqs. 4-11: the objective's analytic gradient against finite differences, capsules."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gesture_pose.core.camera import Camera
+from gesture_pose.core.skeleton import Pose
+from gesture_pose.core.stick.capsules import (
+    body_collision,
+    bone_masses,
+    capsules_from_mesh,
+    segment_closest,
+)
+from gesture_pose.core.stick.environment import Environment, distance_grid
+from gesture_pose.core.stick.figure import humanoid_figure
+from gesture_pose.core.stick.graph import StickFigure
+from gesture_pose.core.stick.kinematics import PoseModel
+from gesture_pose.core.stick.objective import (
+    EnvPin,
+    LimbPin,
+    StickObjective,
+    polygon_offset,
+    project_jacobian,
+)
+from tests.core.test_stick_figure import humanoid_skeleton
+
+
+def box(lo, hi):
+    """Triangles of an axis-aligned box (outward normals)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    v = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                  for z in (lo[2], hi[2])])
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4),
+             (1, 5, 7, 3)]
+    tris = [(a, b, c) for a, b, c, d in quads] + [(a, c, d) for a, b, c, d in quads]
+    return v, np.array(tris)
+
+
+def chair_env():
+    """A floor and a chair seat (a 45 cm high box) behind the character."""
+    fv = np.array([[-3, -3, 0], [3, -3, 0], [3, 3, 0], [-3, 3, 0.0]])
+    ft = np.array([[0, 1, 2], [0, 2, 3]])
+    sv, st = box([-0.25, -0.05, 0.40], [0.25, 0.45, 0.45])
+    return Environment(np.concatenate([fv, sv]), np.concatenate([ft, st + 4]),
+                       np.r_[0, 0, np.ones(len(st), int)], ("floor", "chair"))
+
+
+def problem(rng, with_grid=True):
+    sk = humanoid_skeleton()
+    fig = humanoid_figure(sk)
+    model = PoseModel(sk, fig, Pose.identity(sk.n_bones))
+    cam = Camera.look_at([1.5, -4.0, 1.2], [0, 0, 0.9], width=800, height=600)
+    truth = rng.normal(scale=0.3, size=model.n_genes)
+    heads, tails, _ = model.forward(truth[None])
+    joints = fig.joint_positions(heads, tails)[0]
+    pts = cam.project(joints) + rng.normal(scale=3.0, size=(fig.n_joints, 2))
+    present = ~fig.optional
+    pts[~present] = np.nan
+    stick = StickFigure(fig.joint_names, pts, present, fig.joint_parents, np.zeros((0, 2)))
+    caps = capsules_from_mesh(sk)
+    env = chair_env()
+    grid = distance_grid(env, [0, 0, 0.8], 1.2, 0.05) if with_grid else None
+    obj = StickObjective(
+        model=model, camera=cam, stick=stick, height=1.8, masses=bone_masses(sk, caps),
+        capsules=caps, env_capsules=np.ones(len(caps.bones), bool), grid=grid,
+        support=np.array([[0.1, -0.1, 0], [-0.1, -0.1, 0], [0, 0.3, 0.45]]),
+        env_pins=(EnvPin(fig.joint("ankle.L"), np.array([0.1, 0, 0.09]),
+                         np.array([0, 0, 1.0])),),
+        limb_pins=(LimbPin(fig.joint("wrist.R"), (fig.joint("knee.L"), fig.joint("ankle.L")),
+                           0.3),))
+    return obj, truth
+
+
+def test_gradient_matches_finite_differences():
+    rng = np.random.default_rng(11)
+    obj, truth = problem(rng)
+    for trial in range(3):
+        x = truth + rng.normal(scale=0.4, size=truth.size)
+        x[:3] = rng.normal(scale=0.2, size=3) + [0, 0, -0.3 * trial]  # sink into the seat
+        f, g = obj.value_and_grad(x)
+        h = 1e-6
+        X = np.concatenate([x + h * np.eye(x.size), x - h * np.eye(x.size)])
+        E, terms = obj.evaluate(X)
+        num = (E[: x.size] - E[x.size:]) / (2 * h)
+        assert np.allclose(num, g, rtol=1e-4, atol=1e-6 * max(1.0, abs(f))), trial
+        assert np.isclose(obj.evaluate(x[None])[0][0], f)
+    # The collision term was active in at least the sunken trials.
+    assert terms["collision"].max() > 0
+
+
+def test_projection_jacobian():
+    cam = Camera.look_at([1.5, -4.0, 1.2], [0, 0, 0.9])
+    p = np.array([[0.2, 0.3, 1.1], [-0.4, 0.1, 0.2]])
+    q, J = project_jacobian(cam, p)
+    assert np.allclose(q, cam.project(p))
+    h = 1e-6
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = h
+        assert np.allclose((cam.project(p + d) - cam.project(p - d)) / (2 * h), J[:, :, k],
+                           atol=1e-4)
+
+
+def test_ground_truth_has_low_energy():
+    rng = np.random.default_rng(5)
+    obj, truth = problem(rng, with_grid=False)
+    e_true, terms = obj.evaluate(truth[None], collision=False)
+    e_rand, _ = obj.evaluate(rng.normal(scale=0.6, size=(50, truth.size)), collision=False)
+    assert terms["projection"][0] < np.min(e_rand)
+
+
+def test_segment_distance_against_brute_force():
+    rng = np.random.default_rng(2)
+    p0, p1, q0, q1 = rng.normal(size=(4, 60, 3))
+    q1[:20] = q0[:20] + 1e-3 * (p1[:20] - p0[:20])  # nearly degenerate segments
+    off = np.cross(p1[20:40] - p0[20:40], rng.normal(size=(20, 3)))
+    off /= np.linalg.norm(off, axis=1, keepdims=True)
+    q0[20:40], q1[20:40] = p0[20:40] + off, p1[20:40] + off  # parallel, 1 apart
+    s, t, d = segment_closest(p0, p1, q0, q1)
+    u = np.linspace(0, 1, 201)
+    a = p0[:, None] + u[None, :, None] * (p1 - p0)[:, None]
+    b = q0[:, None] + u[None, :, None] * (q1 - q0)[:, None]
+    brute = np.linalg.norm(a[:, :, None] - b[:, None], axis=-1).min(axis=(1, 2))
+    assert np.all(d <= brute + 1e-9)
+    assert np.allclose(d, brute, atol=1e-2)
+    assert np.all((s >= 0) & (s <= 1) & (t >= 0) & (t <= 1))
+    assert np.allclose(d[20:40], 1.0)
+
+
+def test_body_collision_counts_only_overlaps():
+    sk = humanoid_skeleton()
+    caps = capsules_from_mesh(sk)
+    heads, tails = sk.rest_heads[None], sk.rest_tails[None]
+    e, _, _ = body_collision(caps, heads, tails)
+    assert e[0] == 0.0
+    # Move the left hand onto the right thigh: they now overlap.
+    h, t = heads.copy(), tails.copy()
+    hand, thigh = sk.index("hand.L"), sk.index("thigh.R")
+    shift = 0.5 * (sk.rest_heads[thigh] + sk.rest_tails[thigh]) - sk.rest_heads[hand]
+    h[0, hand] += shift
+    t[0, hand] += shift
+    e, _, _ = body_collision(caps, h, t)
+    i = list(caps.bones).index(hand)
+    j = list(caps.bones).index(thigh)
+    expected = (caps.radii[i] + caps.radii[j]) ** 2  # axes cross: distance 0
+    assert np.isclose(e[0], expected, rtol=1e-6)
+
+
+def test_capsule_radii_from_a_cylinder_mesh():
+    sk = humanoid_skeleton()
+    i = sk.index("shin.L")
+    a, b = sk.rest_heads[i], sk.rest_tails[i]
+    axis = (b - a) / np.linalg.norm(b - a)
+    ortho = np.cross(axis, [1, 0, 0])
+    ortho /= np.linalg.norm(ortho)
+    other = np.cross(axis, ortho)
+    ang = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    ts = np.linspace(0.1, 0.9, 10)
+    verts = np.array([a + tt * (b - a) + 0.06 * (np.cos(q) * ortho + np.sin(q) * other)
+                      for tt in ts for q in ang])
+    w = np.zeros((len(verts), sk.n_bones))
+    w[:, i] = 1.0
+    caps = capsules_from_mesh(sk, verts, w)
+    assert caps.bones.tolist() == [i]
+    assert np.isclose(caps.radii[0], 0.06)
+
+
+def test_polygon_offset_inside_and_outside():
+    square = np.array([[0, 0], [1, 0], [1, 1], [0, 1.0]])
+    q = np.array([[0.5, 0.5], [2.0, 0.5], [-1.0, -1.0]])
+    off = polygon_offset(q, square)
+    assert np.allclose(off, [[0, 0], [1, 0], [-1, -1]])
+    seg = np.array([[0, 0], [2, 0.0]])
+    assert np.allclose(polygon_offset(np.array([[1.0, 0.5]]), seg), [[0, 0.5]])
+
+
+def test_distance_grid_on_a_plane():
+    env = chair_env()
+    grid = distance_grid(env, [1.0, -1.0, 0.5], 0.5, 0.05)
+    pts = np.array([[1.0, -1.0, 0.3], [0.8, -1.2, 0.62]])
+    d, g = grid.sample(pts)
+    assert np.allclose(d, pts[:, 2], atol=0.01)
+    assert np.allclose(g, [[0, 0, 1], [0, 0, 1]], atol=0.05)
