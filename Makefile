@@ -23,10 +23,16 @@ venv: $(STAMP)
 test: $(STAMP)
 	$(VENV_PY) -m pytest -q tests
 
+SCENES := sample_scenes/humanoid.blend sample_scenes/tentacle.blend sample_scenes/quadruped.blend
+
+# Rebuild the sample scenes on request; `make demo` only builds those that are missing.
 sample-scenes: $(STAMP)
 	$(VENV_PY) sample_scenes/make_scenes.py
 
-demo: $(STAMP) sample-scenes
+$(SCENES): | $(STAMP)
+	$(VENV_PY) sample_scenes/make_scenes.py
+
+demo: $(STAMP) $(SCENES)
 	$(VENV_PY) tools/demo.py
 
 bench: $(STAMP)
