@@ -1,0 +1,29 @@
+"""Gesture drawings, part 2: the 3D pose a drawing depicts (Gesture3D Section 7).
+
+:func:`solve_pose3d` lifts a 2D skeletal embedding (:class:`..types.Embedding2D`) to a 3D
+pose with exact bone lengths; :func:`flip_depth` mirrors a limb's depth for the cases the
+drawing leaves open.
+"""
+
+from .energies import ViewFrame, view_frame
+from .ordering import OrderingConstraint, ordering_constraints
+from .qp import LinearConstraint, QPProblem, QPResult, build_qp, solve_qp
+from .solve3d import DepthOptions, Pose3DResult, solve_pose3d
+from .symmetry import flip_depth, symmetrize
+
+__all__ = [
+    "DepthOptions",
+    "LinearConstraint",
+    "OrderingConstraint",
+    "Pose3DResult",
+    "QPProblem",
+    "QPResult",
+    "ViewFrame",
+    "build_qp",
+    "flip_depth",
+    "ordering_constraints",
+    "solve_pose3d",
+    "solve_qp",
+    "symmetrize",
+    "view_frame",
+]

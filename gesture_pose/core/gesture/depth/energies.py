@@ -1,0 +1,189 @@
+"""Conformity and foreshortening energies of the 3D lifting (Gesture3D Section 7).
+
+Every term here is a weighted linear least-squares residual of the flattened joint
+positions ``x = vec(X)`` (``X`` of shape ``(J, 3)``, world units, row-major)::
+
+    E = sum_i weight_i * (M x - target)_i^2
+
+so the solver only needs its matrix, target and weights (:class:`LinearTerm`). The view is
+orthographic as in the paper: a joint's image is ``scale * (right . X, up . X)`` plus a
+constant and its depth is ``forward . X``. For a perspective camera, ``scale`` is the
+camera's pixels per world unit at the character's depth (:func:`view_frame`).
+
+The links are the edges of the solving skeleton's joint tree (bones and the rigid offsets
+of unconnected bones); ``lengths`` are their rest lengths, which the twist parametrization
+keeps exact.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...camera import Camera
+from ...exceptions import InputError
+
+
+@dataclass(frozen=True)
+class ViewFrame:
+    """The orthographic view the drawing is interpreted in.
+
+    Attributes:
+        right: World direction of the image x axis, shape ``(3,)``.
+        up: World direction of the image y axis, shape ``(3,)``.
+        forward: World direction away from the viewer (depth grows along it), ``(3,)``.
+        scale: Pixels per world unit at the character's depth.
+    """
+
+    right: np.ndarray
+    up: np.ndarray
+    forward: np.ndarray
+    scale: float
+
+    def depth(self, X: np.ndarray) -> np.ndarray:
+        """Depth of points along ``forward`` (up to a constant), shape ``(n,)``."""
+        return np.asarray(X, dtype=float) @ self.forward
+
+
+@dataclass(frozen=True)
+class LinearTerm:
+    """A weighted least-squares term ``sum_i w_i ((M x) - t)_i^2`` of the joint positions.
+
+    Attributes:
+        name: Term name (``"conformity"``, ``"foreshortening"``, ``"spline"``).
+        matrix: ``M``, shape ``(r, 3J)``.
+        target: ``t``, shape ``(r,)``.
+        weight: ``w`` per row, shape ``(r,)``.
+    """
+
+    name: str
+    matrix: np.ndarray
+    target: np.ndarray
+    weight: np.ndarray
+
+    def value(self, X: np.ndarray) -> float:
+        """Energy at joint positions ``X`` of shape ``(J, 3)``."""
+        r = self.matrix @ np.ravel(X) - self.target
+        return float(np.sum(self.weight * r * r))
+
+
+def view_frame(camera: Camera, center: np.ndarray) -> ViewFrame:
+    """The orthographic approximation of ``camera`` around the world point ``center``.
+
+    Args:
+        camera: The view the drawing was made in.
+        center: A point at the character's depth, shape ``(3,)`` (e.g. the rest joints'
+            centroid).
+
+    Returns:
+        The view frame; for a perspective camera the scale is the one at ``center``.
+    """
+    view = camera.view_matrix
+    center = np.asarray(center, dtype=float)
+    scale = camera.pixels_per_unit(float(camera.depth(center[None])[0]))
+    return ViewFrame(view[0, :3].copy(), view[1, :3].copy(), camera.forward, scale)
+
+
+def joint_links(joint_parent: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Edges of a joint tree.
+
+    Args:
+        joint_parent: Parent joint of each joint, -1 for roots, shape ``(J,)``.
+
+    Returns:
+        ``(a, b)``: parent and child joint of every link, each ``(L,)``.
+    """
+    b = np.flatnonzero(np.asarray(joint_parent) >= 0)
+    return np.asarray(joint_parent)[b], b
+
+
+def _difference_rows(a: np.ndarray, b: np.ndarray, axis: np.ndarray, n_joints: int
+                     ) -> np.ndarray:
+    """Rows ``axis . (X_b - X_a)`` for each link, shape ``(L, 3J)``."""
+    rows = np.zeros((len(a), n_joints, 3))
+    idx = np.arange(len(a))
+    rows[idx, b] += axis
+    rows[idx, a] -= axis
+    return rows.reshape(len(a), 3 * n_joints)
+
+
+def conformity_term(frame: ViewFrame, joints2d: np.ndarray, a: np.ndarray, b: np.ndarray,
+                    lengths: np.ndarray, n_joints: int) -> LinearTerm:
+    """E_c (Eq. 5): the projected 3D links match the drawn 2D links, slope and length.
+
+    ``E_c = sum_ab w_ab || P (X_b - X_a) - (p_b - p_a) / scale ||^2`` with ``P`` the image
+    axes and ``w_ab = 1 / l_ab^2``.
+
+    Args:
+        frame: The view.
+        joints2d: Drawn joints, pixels, shape ``(J, 2)``.
+        a: Parent joint of each link, shape ``(L,)``.
+        b: Child joint of each link, shape ``(L,)``.
+        lengths: Rest 3D length of each link, world units, shape ``(L,)``.
+        n_joints: ``J``.
+
+    Returns:
+        The term, ``2L`` rows.
+    """
+    drawn = (joints2d[b] - joints2d[a]) / frame.scale
+    matrix = np.concatenate([_difference_rows(a, b, frame.right, n_joints),
+                             _difference_rows(a, b, frame.up, n_joints)])
+    target = np.concatenate([drawn[:, 0], drawn[:, 1]])
+    w = 1.0 / np.maximum(lengths, 1e-9) ** 2
+    return LinearTerm("conformity", matrix, target, np.concatenate([w, w]))
+
+
+def foreshortening_ratios(joints2d: np.ndarray, a: np.ndarray, b: np.ndarray,
+                          lengths: np.ndarray, scale: float) -> np.ndarray:
+    """Drawn length over full 3D length of each link, ``(L,)`` (1 = in the view plane)."""
+    drawn = np.linalg.norm(joints2d[b] - joints2d[a], axis=1) / scale
+    return drawn / np.maximum(lengths, 1e-9)
+
+
+def foreshortening_weights(ratios: np.ndarray, sigma_f: float = 0.2,
+                           free_ratio: float = 0.6) -> np.ndarray:
+    """Weights of E_v (Eq. 6) from each link's foreshortening relative to the average.
+
+    With ``rho = f / mean(f)``: links drawn at least as long as the average keep weight 1
+    (their depth should not change), shorter ones get ``exp(-(1 - rho)^2 / (2 sigma_f^2))``
+    and links with ``rho < free_ratio`` are deliberately foreshortened and free (weight 0).
+
+    Args:
+        ratios: Foreshortening ``f`` per link, shape ``(L,)``.
+        sigma_f: Width of the fall-off (paper: 0.2).
+        free_ratio: Relative foreshortening below which a link is free (paper: 0.6).
+
+    Returns:
+        Weights in ``[0, 1]``, shape ``(L,)``.
+    """
+    ratios = np.asarray(ratios, dtype=float)
+    mean = float(np.mean(ratios)) if ratios.size else 1.0
+    if mean <= 1e-9:
+        raise InputError("Every bone of the drawing has zero length: redraw the figure.")
+    rho = ratios / mean
+    w = np.exp(-np.maximum(1.0 - rho, 0.0) ** 2 / (2.0 * sigma_f**2))
+    return np.where(rho < free_ratio, 0.0, w)
+
+
+def foreshortening_term(frame: ViewFrame, a: np.ndarray, b: np.ndarray, lengths: np.ndarray,
+                        weights: np.ndarray, n_joints: int) -> LinearTerm:
+    """E_v (Eq. 7): penalize depth change along links that the drawing shows unshortened.
+
+    ``E_v = sum_ab v_ab (d_b - d_a)^2 / l_ab^2`` with ``d = forward . X`` and ``v_ab`` from
+    :func:`foreshortening_weights`.
+
+    Args:
+        frame: The view.
+        a: Parent joint of each link, shape ``(L,)``.
+        b: Child joint of each link, shape ``(L,)``.
+        lengths: Rest 3D lengths, world units, shape ``(L,)``.
+        weights: ``v_ab``, shape ``(L,)``.
+        n_joints: ``J``.
+
+    Returns:
+        The term, ``L`` rows.
+    """
+    matrix = _difference_rows(a, b, frame.forward, n_joints)
+    w = np.asarray(weights, dtype=float) / np.maximum(lengths, 1e-9) ** 2
+    return LinearTerm("foreshortening", matrix, np.zeros(len(a)), w)

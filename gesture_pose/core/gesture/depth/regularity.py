@@ -1,0 +1,242 @@
+"""Regularity cues of the 3D lifting (Gesture3D Section 7).
+
+- **Same direction (hard).** Consecutive links whose drawn directions are within 10
+  degrees are read as one straight limb: their 3D unit directions are made equal,
+  ``(X_c - X_b) / l_bc - (X_b - X_a) / l_ab = 0``, linear in the joint positions.
+- **Contacts (hard).** Two joints far apart in the skeleton whose drawn circles overlap
+  and whose contour pieces touch are in contact: their depths may differ by at most the
+  sum of their radii, ``|d_i - d_j| <= (r_i + r_j) / scale``.
+- **Limb splines (soft).** For each limb (a joint-tree path from a branch point or the
+  root to a terminal joint) a quadratic curve is fitted to the drawn joints; the joints
+  within half their radius of it are attracted to the quadratic fitted to the limb's 3D
+  joints, ``|| ((I - H) X)_j ||^2`` with ``H`` the least-squares hat matrix of the fit.
+
+Near-symmetric limbs are handled after the solve (:mod:`.symmetry`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..types import Embedding2D, SolvingSkeleton
+from .energies import LinearTerm, ViewFrame
+from .qp import LinearConstraint
+
+
+def _angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Angle between 2D vectors, radians, shape ``(k,)``."""
+    cos = np.sum(u * v, axis=-1) / np.maximum(
+        np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1), 1e-12)
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+def parallel_pairs(joint_parent: np.ndarray, joints2d: np.ndarray,
+                   max_angle: float = np.radians(10.0), ratios: np.ndarray | None = None,
+                   max_ratio_gap: float = 0.2) -> np.ndarray:
+    """Consecutive links drawn in nearly the same direction (and equally foreshortened).
+
+    Two links with one 3D direction are foreshortened alike, so a pair whose drawn
+    foreshortening differs by more than ``max_ratio_gap`` (one ``sigma_f``) is not one
+    straight limb but a bend in depth, and is left out.
+
+    Args:
+        joint_parent: Parent joint per joint, -1 for roots, shape ``(J,)``.
+        joints2d: Drawn joints, pixels, shape ``(J, 2)``.
+        max_angle: Largest angle between the drawn directions, radians (paper: 10 deg).
+        ratios: Foreshortening of the link ending at each joint, shape ``(J,)`` (optional).
+        max_ratio_gap: Largest difference of the two links' foreshortening.
+
+    Returns:
+        Joint triples ``(a, b, c)`` with ``a`` parent of ``b`` parent of ``c``, ``(k, 3)``.
+    """
+    jp = np.asarray(joint_parent)
+    c = np.flatnonzero(jp >= 0)
+    b = jp[c]
+    keep = b >= 0
+    c, b = c[keep], b[keep]
+    a = jp[b]
+    keep = a >= 0
+    a, b, c = a[keep], b[keep], c[keep]
+    keep = _angle(joints2d[b] - joints2d[a], joints2d[c] - joints2d[b]) <= max_angle
+    if ratios is not None:
+        keep &= np.abs(ratios[c] - ratios[b]) <= max_ratio_gap
+    return np.stack([a, b, c], axis=1)[keep].reshape(-1, 3)
+
+
+def direction_constraints(triples: np.ndarray, rest_joints: np.ndarray,
+                          labels: tuple[str, ...] = ()) -> LinearConstraint:
+    """Equal 3D unit directions for each triple (3 rows each).
+
+    Args:
+        triples: ``(a, b, c)`` joint triples, shape ``(k, 3)``.
+        rest_joints: Rest joints (for the link lengths), shape ``(J, 3)``.
+        labels: Joint names for the labels (optional).
+
+    Returns:
+        Equality rows on the flattened joint positions.
+    """
+    n_j = len(rest_joints)
+    A = np.zeros((len(triples), 3, n_j, 3))
+    eye = np.eye(3)
+    names = []
+    for i, (a, b, c) in enumerate(triples):
+        l1 = np.linalg.norm(rest_joints[b] - rest_joints[a])
+        l2 = np.linalg.norm(rest_joints[c] - rest_joints[b])
+        A[i, :, c] += eye / l2
+        A[i, :, b] -= eye / l2 + eye / l1
+        A[i, :, a] += eye / l1
+        tag = f"{labels[b]}" if labels else f"joint {b}"
+        names.extend([f"straight at {tag}"] * 3)
+    A = A.reshape(3 * len(triples), 3 * n_j)
+    zero = np.zeros(len(A))
+    return LinearConstraint(A, zero, zero.copy(), tuple(names))
+
+
+def _tree_distance(joint_parent: np.ndarray) -> np.ndarray:
+    """Number of links between every pair of joints, shape ``(J, J)``."""
+    n = len(joint_parent)
+    path = [[j] for j in range(n)]
+    for j in range(n):
+        while joint_parent[path[j][-1]] >= 0:
+            path[j].append(int(joint_parent[path[j][-1]]))
+    depth = np.array([len(p) - 1 for p in path])
+    dist = np.zeros((n, n), dtype=int)
+    for i in range(n):
+        anc_i = {a: k for k, a in enumerate(path[i])}
+        for j in range(n):
+            common = next(a for a in path[j] if a in anc_i)
+            dist[i, j] = depth[i] + depth[j] - 2 * depth[common]
+    return dist
+
+
+def contact_pairs(embedding: Embedding2D, min_links: int = 4,
+                  touch: float | None = None) -> np.ndarray:
+    """Joint pairs in contact in the drawing.
+
+    Args:
+        embedding: The 2D embedding.
+        min_links: Only joints at least this many links apart count (nearby joints overlap
+            anyway).
+        touch: Largest gap between the joints' contour pieces, pixels (default two
+            resampling steps, 4 px if unknown); pieces are only checked when both joints
+            have some.
+
+    Returns:
+        Joint pairs ``(i, j)``, ``i < j``, shape ``(k, 2)``.
+    """
+    s: SolvingSkeleton = embedding.solving
+    p, r = embedding.joints2d, embedding.joint_radius
+    gap = touch if touch is not None else (2.0 * embedding.epsilon if embedding.epsilon > 0
+                                           else 4.0)
+    dist = _tree_distance(np.asarray(s.joint_parent))
+    d2 = np.linalg.norm(p[:, None] - p[None], axis=-1)
+    cand = np.argwhere(np.triu((d2 < r[:, None] + r[None]) & (dist >= min_links), 1))
+    segs = embedding.joint_segments
+    keep = []
+    for i, j in cand:
+        if len(segs) > max(i, j) and len(segs[i]) and len(segs[j]):
+            sep = np.min(np.linalg.norm(segs[i][:, None] - segs[j][None], axis=-1))
+            if sep > gap:
+                continue
+        keep.append((i, j))
+    return np.asarray(keep, dtype=int).reshape(-1, 2)
+
+
+def contact_constraints(pairs: np.ndarray, embedding: Embedding2D, frame: ViewFrame,
+                        labels: tuple[str, ...] = ()) -> LinearConstraint:
+    """``|d_i - d_j| <= (r_i + r_j) / scale`` for each contact pair.
+
+    Args:
+        pairs: Joint pairs, shape ``(k, 2)``.
+        embedding: The 2D embedding (joint radii in pixels).
+        frame: The view.
+        labels: Joint names (optional).
+
+    Returns:
+        Two-sided rows on the flattened joint positions.
+    """
+    n_j = len(embedding.joints2d)
+    A = np.zeros((len(pairs), n_j, 3))
+    idx = np.arange(len(pairs))
+    A[idx, pairs[:, 0]] += frame.forward
+    A[idx, pairs[:, 1]] -= frame.forward
+    reach = (embedding.joint_radius[pairs[:, 0]] + embedding.joint_radius[pairs[:, 1]]) \
+        / frame.scale
+    names = tuple(f"contact {labels[i]}-{labels[j]}" if labels else f"contact {i}-{j}"
+                  for i, j in pairs)
+    return LinearConstraint(A.reshape(len(pairs), 3 * n_j), -reach, reach, names)
+
+
+def limbs(joint_parent: np.ndarray) -> list[np.ndarray]:
+    """Joint paths from each branch point (or root) down to each terminal joint.
+
+    Args:
+        joint_parent: Parent joint per joint, shape ``(J,)``.
+
+    Returns:
+        One array of joint indices per terminal joint, from the top of the limb down.
+    """
+    jp = np.asarray(joint_parent)
+    n_children = np.bincount(jp[jp >= 0], minlength=len(jp))
+    out = []
+    for t in np.flatnonzero(n_children == 0):
+        path = [int(t)]
+        while jp[path[-1]] >= 0:
+            path.append(int(jp[path[-1]]))
+            if n_children[path[-1]] != 1:
+                break
+        out.append(np.array(path[::-1]))
+    return out
+
+
+def _hat(joints2d: np.ndarray) -> np.ndarray:
+    """Hat matrix of a quadratic least-squares fit over drawn arc length, ``(k, k)``."""
+    arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(joints2d, axis=0), axis=1))]
+    t = arc / max(arc[-1], 1e-9)
+    V = np.stack([np.ones_like(t), t, t * t], axis=1)
+    return V @ np.linalg.pinv(V)
+
+
+def _runs(limb: np.ndarray, free: np.ndarray) -> list[np.ndarray]:
+    """Split a limb where a link is deliberately foreshortened (joint ``free``)."""
+    cuts = [i for i in range(1, len(limb)) if free[limb[i]]]
+    bounds = [0, *cuts, len(limb)]
+    return [limb[lo:hi] for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)]
+
+
+def spline_term(embedding: Embedding2D, rest_joints: np.ndarray, frame: ViewFrame,
+                weight: float = 1.0, free: np.ndarray | None = None) -> LinearTerm:
+    """The soft limb-spline term on joint depths (see the module docstring).
+
+    A deliberately foreshortened link (E_v weight 0) is a bend in depth, not part of a
+    smooth curve: limbs are split there and each run is fitted on its own.
+
+    Args:
+        embedding: The 2D embedding.
+        frame: The view (depth axis).
+        free: Whether the link ending at each joint is deliberately foreshortened,
+            shape ``(J,)`` bool (optional).
+        rest_joints: Rest joints (for the length normalization), shape ``(J, 3)``.
+        weight: Term weight.
+
+    Returns:
+        The term (no rows when no limb has 4 joints or more).
+    """
+    s = embedding.solving
+    n_j = len(embedding.joints2d)
+    rows = []
+    free = np.zeros(n_j, bool) if free is None else np.asarray(free, bool)
+    runs = [r for limb in limbs(np.asarray(s.joint_parent)) for r in _runs(limb, free)]
+    for limb in runs:
+        if len(limb) < 4:
+            continue
+        H = _hat(embedding.joints2d[limb])
+        off = (np.eye(len(limb)) - H) @ embedding.joints2d[limb]
+        near = np.linalg.norm(off, axis=1) <= 0.5 * embedding.joint_radius[limb]
+        seg = np.linalg.norm(np.diff(rest_joints[limb], axis=0), axis=1).mean()
+        for k in np.flatnonzero(near):
+            row = np.zeros((n_j, 3))
+            row[limb] = (((np.arange(len(limb)) == k) - H[k]) / seg)[:, None] * frame.forward
+            rows.append(row.ravel())
+    M = np.array(rows).reshape(-1, 3 * n_j)
+    return LinearTerm("spline", M, np.zeros(len(M)), np.full(len(M), weight))

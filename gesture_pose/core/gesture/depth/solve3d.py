@@ -1,0 +1,395 @@
+"""The 3D pose a viewer reads in a gesture drawing (Gesture3D Section 7).
+
+:func:`solve_pose3d` lifts a 2D skeletal embedding to 3D:
+
+1. Drawing cues: link foreshortening and the E_c / E_v terms (Eqs. 5-7, :mod:`.energies`),
+   same-direction links, contacts and limb splines (:mod:`.regularity`), and the depth
+   order of occlusions and T-junctions (Eq. 8, :mod:`.ordering`).
+2. Start from the bind pose with every solving bone aimed at its drawn direction, lifted
+   out of the view plane by the length the drawing lost (``sqrt(l^2 - l_2d^2)``). From a
+   flat pose the linearized projection cannot shorten a bone (the depth direction is a
+   saddle), so this start is what lets the QPs see foreshortening. The depth side of each
+   lifted bone is the bind pose's when that is clear, else towards the viewer; sides that
+   break an ordering constraint are flipped greedily.
+3. A sequence of QPs (:mod:`.qp`) in twist coordinates (:mod:`.twist`) with the
+   stabilizer of Eq. 9, ordering as inequalities, until the step is negligible.
+4. Near-symmetric left/right limbs made exactly symmetric (:mod:`.symmetry`).
+
+Bone lengths are exact throughout (joint positions always come from forward kinematics).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...camera import Camera
+from ...exceptions import InputError, SolverError
+from ...rotations import log_map, normalize
+from ...skeleton import Pose, Skeleton
+from ..types import Embedding2D
+from . import energies, ordering, regularity, symmetry, twist
+from .qp import LinearConstraint, build_qp, solve_qp
+
+
+@dataclass(frozen=True)
+class DepthOptions:
+    """Parameters of the 3D lifting; defaults are the paper's where it gives them.
+
+    Attributes:
+        alpha: Weight of the drawing energies against the unit stabilizer of Eq. 9
+            (paper: 200).
+        sigma_f: Foreshortening fall-off of Eq. 6 (paper: 0.2).
+        free_ratio: Relative foreshortening below which a bone is free (paper: 0.6).
+        parallel_angle: Drawn angle under which consecutive links get one 3D direction,
+            radians (paper: 10 degrees).
+        spline_weight: Weight of the soft limb-spline term.
+        use_contacts: Keep drawn contacts as depth constraints.
+        symmetry_angle: Largest mirrored-bone angle for the symmetry post-process, radians;
+            0 disables it.
+        max_iterations: SQP iteration limit.
+        tolerance: Stop when no joint moves more than this fraction of the mean link length.
+        toward_viewer: Default side of a foreshortened bone the drawing does not decide.
+        soft_penalty: Slack penalty when the hard constraints contradict each other.
+    """
+
+    alpha: float = 200.0
+    sigma_f: float = 0.2
+    free_ratio: float = 0.6
+    parallel_angle: float = float(np.radians(10.0))
+    spline_weight: float = 1.0
+    use_contacts: bool = True
+    symmetry_angle: float = float(np.radians(10.0))
+    max_iterations: int = 100
+    tolerance: float = 1e-4
+    toward_viewer: bool = True
+    soft_penalty: float = 1e7
+
+
+@dataclass(frozen=True)
+class Pose3DResult:
+    """The solved 3D pose and its diagnostics.
+
+    Attributes:
+        pose: Full-skeleton pose (non-solving bones keep their input rotations).
+        rotations: Local rotations of the solving bones, shape ``(m, 3, 3)``.
+        bones: Full-skeleton indices of the solving bones, shape ``(m,)``.
+        joints3d: Solved joint positions, world units, shape ``(J, 3)``.
+        e_conformity: E_c at the solution (Eq. 5).
+        e_foreshortening: E_v at the solution (Eq. 7).
+        e_spline: Limb-spline energy at the solution.
+        iterations: SQP iterations.
+        converged: Whether the step fell under the tolerance.
+        active: Labels of the inequality constraints active at the solution.
+        ordering: The depth-order constraints used.
+        ordering_satisfied: Whether each ordering constraint holds at the solution.
+        equalities: Labels of the hard equality constraints (same direction).
+        contacts: Joint pairs kept in contact, shape ``(k, 2)``.
+        foreshortening: Drawn over 3D length per link, shape ``(L,)``.
+        symmetric: Left bones made symmetric with their right partners.
+        timings: Seconds per stage (``"setup"``, ``"start"``, ``"sqp"``, ``"qp"``, ...).
+        warnings: Human-readable notes.
+    """
+
+    pose: Pose
+    rotations: np.ndarray
+    bones: np.ndarray
+    joints3d: np.ndarray
+    e_conformity: float
+    e_foreshortening: float
+    e_spline: float
+    iterations: int
+    converged: bool
+    active: tuple[str, ...]
+    ordering: tuple[ordering.OrderingConstraint, ...]
+    ordering_satisfied: np.ndarray
+    equalities: tuple[str, ...]
+    contacts: np.ndarray
+    foreshortening: np.ndarray
+    symmetric: tuple[str, ...]
+    timings: dict = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """Everything fixed during the SQP loop."""
+
+    jmap: twist.JointMap
+    frame: energies.ViewFrame
+    links: tuple[np.ndarray, np.ndarray]
+    lengths: np.ndarray
+    ratios: np.ndarray
+    terms: list
+    constraints: list
+    order: list
+    kappa: float
+
+
+def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pose,
+           opts: DepthOptions) -> tuple[_Setup, np.ndarray, np.ndarray, tuple[str, ...]]:
+    """Drawing cues, terms and constraints (step 1 of the module docstring)."""
+    s = embedding.solving
+    jmap = twist.joint_map(skeleton, s)
+    if len(embedding.joints2d) != jmap.n_joints or not np.all(
+            np.isfinite(embedding.joints2d)):
+        raise InputError("The 2D embedding has missing or invalid joints: redo the fit.")
+    X_rest, _ = twist.joint_positions(skeleton, jmap, bind)
+    frame = energies.view_frame(camera, X_rest.mean(axis=0))
+    a, b = energies.joint_links(np.asarray(s.joint_parent))
+    lengths = np.linalg.norm(X_rest[b] - X_rest[a], axis=1)
+    n_j = jmap.n_joints
+    ratios = energies.foreshortening_ratios(embedding.joints2d, a, b, lengths, frame.scale)
+    weights = energies.foreshortening_weights(ratios, opts.sigma_f, opts.free_ratio)
+    terms = [energies.conformity_term(frame, embedding.joints2d, a, b, lengths, n_j),
+             energies.foreshortening_term(frame, a, b, lengths, weights, n_j)]
+    free = np.zeros(n_j, bool)
+    free[b] = weights == 0.0
+    spline = regularity.spline_term(embedding, X_rest, frame, opts.spline_weight, free)
+    if len(spline.target):
+        terms.append(spline)
+    names = tuple(skeleton.names[k] for k in jmap.bones)
+    joint_names = tuple(s.joint_bones) if len(s.joint_bones) == n_j else ()
+    constraints = []
+    joint_ratio = np.ones(n_j)
+    joint_ratio[b] = ratios
+    triples = regularity.parallel_pairs(s.joint_parent, embedding.joints2d,
+                                        opts.parallel_angle, joint_ratio, opts.sigma_f)
+    if len(triples):
+        constraints.append(regularity.direction_constraints(triples, X_rest, joint_names))
+    contacts = (regularity.contact_pairs(embedding) if opts.use_contacts
+                else np.zeros((0, 2), int))
+    if len(contacts):
+        constraints.append(regularity.contact_constraints(contacts, embedding, frame,
+                                                          joint_names))
+    order = ordering.ordering_constraints(embedding, frame.scale, names)
+    if order:
+        rows = ordering.ordering_rows(order, frame.forward, n_j)
+        # A hair of extra margin so that the nonlinear constraints hold, not only their
+        # linearization at the last step.
+        slack = 1e-5 * float(np.mean(lengths))
+        constraints.append(LinearConstraint(rows.matrix, rows.lower + slack, rows.upper,
+                                            rows.labels))
+    kappa = 1.0 / max(float(np.sum(lengths**2)), 1e-12)
+    setup = _Setup(jmap, frame, (a, b), lengths, ratios, terms, constraints, order, kappa)
+    return setup, X_rest, contacts, names
+
+
+def _lifted_pose(skeleton: Skeleton, setup: _Setup, embedding: Embedding2D, bind: Pose,
+                 signs: np.ndarray, fixed: np.ndarray) -> Pose:
+    """Bind pose with each solving bone aimed at its drawn direction, lifted by ``signs``."""
+    s, f = embedding.solving, setup.frame
+    pose = bind
+    for k, bone in enumerate(setup.jmap.bones):
+        if fixed[k]:
+            continue
+        drawn = (embedding.joints2d[s.tail_joint[k]] - embedding.joints2d[s.head_joint[k]]) \
+            / f.scale
+        length = skeleton.lengths[bone]
+        depth = np.sqrt(max(length**2 - drawn @ drawn, 0.0)) * signs[k]
+        direction = drawn[0] * f.right + drawn[1] * f.up + depth * f.forward
+        if np.linalg.norm(direction) < 1e-9 * length:
+            continue
+        state = skeleton.forward(pose)
+        rot = skeleton.aim_local(int(bone), direction, state, pose.rotations[bone])
+        pose = pose.with_rotations(np.array([bone]), rot[None])
+    return pose
+
+
+def _start(skeleton: Skeleton, setup: _Setup, embedding: Embedding2D, bind: Pose,
+           opts: DepthOptions, pinned: np.ndarray | None) -> tuple[Pose, np.ndarray]:
+    """Lifted start pose and depth sides (step 2 of the module docstring)."""
+    jm, f = setup.jmap, setup.frame
+    fixed = (np.zeros(jm.n_bones, bool) if pinned is None
+             else np.asarray(pinned, bool)[jm.bones])
+    state = skeleton.forward(bind)
+    bind_slope = ((state.tails[jm.bones] - state.heads[jm.bones]) @ f.forward) \
+        / skeleton.lengths[jm.bones]
+    default = -1.0 if opts.toward_viewer else 1.0
+    signs = np.where(np.abs(bind_slope) > 0.3, np.sign(bind_slope), default)
+    pose = _lifted_pose(skeleton, setup, embedding, bind, signs, fixed)
+    if not setup.order:
+        return pose, signs
+
+    def badness(p: Pose) -> float:
+        X, _ = twist.joint_positions(skeleton, jm, p)
+        return float(np.sum(ordering.violations(setup.order, f.depth(X))))
+
+    current = badness(pose)
+    s = embedding.solving
+    drawn = np.linalg.norm(embedding.joints2d[s.tail_joint] - embedding.joints2d[s.head_joint],
+                           axis=1) / f.scale
+    lifted = np.flatnonzero((drawn < 0.98 * skeleton.lengths[jm.bones]) & ~fixed)
+    for _ in range(len(lifted)):
+        if current <= 1e-12:
+            break
+        best, best_pose, best_k = current, None, -1
+        for k in lifted:
+            trial = signs.copy()
+            trial[k] = -trial[k]
+            p = _lifted_pose(skeleton, setup, embedding, bind, trial, fixed)
+            v = badness(p)
+            if v < best - 1e-12:
+                best, best_pose, best_k = v, p, k
+        if best_pose is None:
+            break
+        signs[best_k] = -signs[best_k]
+        pose, current = best_pose, best
+    return pose, signs
+
+
+def _dof_rows(skeleton: Skeleton, jmap: twist.JointMap, pose: Pose, frames: np.ndarray,
+              lock: np.ndarray | None, limits: np.ndarray | None,
+              pinned: np.ndarray | None) -> list[LinearConstraint]:
+    """Rig restrictions on the twists: pinned bones, locked axes and IK limits.
+
+    The local rotation vector after the step is about ``log(Q) + F^T delta`` (first order
+    around small rotations), so a locked local axis ``a`` gives the row
+    ``F[:, a] . delta = -log(Q)_a`` and an IK limit ``[lo, hi]`` the bounds
+    ``lo - log(Q)_a <= F[:, a] . delta <= hi - log(Q)_a``.
+    """
+    m = jmap.n_bones
+    rows, lo, hi, labels = [], [], [], []
+    rotvec = log_map(pose.rotations[jmap.bones])
+    for k, bone in enumerate(jmap.bones):
+        for axis in range(3):
+            fixed = bool(pinned is not None and pinned[bone])
+            locked = bool(lock is not None and lock[bone, axis])
+            lim = limits[bone, axis] if limits is not None else np.array([np.nan, np.nan])
+            if not (fixed or locked or np.all(np.isfinite(lim))):
+                continue
+            row = np.zeros((m, 3))
+            if fixed:
+                row[k, axis] = 1.0
+                lo_k = hi_k = 0.0
+            else:
+                row[k] = frames[k][:, axis]
+                lo_k = hi_k = -rotvec[k, axis]
+                if not locked:
+                    lo_k, hi_k = lim[0] - rotvec[k, axis], lim[1] - rotvec[k, axis]
+            rows.append(row.ravel())
+            lo.append(lo_k)
+            hi.append(hi_k)
+            kind = "pinned" if fixed else ("locked" if locked else "ik limit")
+            labels.append(f"{kind} {skeleton.names[bone]} {'xyz'[axis]}")
+    if not rows:
+        return []
+    return [LinearConstraint(np.array(rows), np.array(lo), np.array(hi), tuple(labels))]
+
+
+def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
+                 pose: Pose | None = None, *, lock_rotation: np.ndarray | None = None,
+                 ik_limits: np.ndarray | None = None, pinned: np.ndarray | None = None,
+                 options: DepthOptions | None = None) -> Pose3DResult:
+    """Lift a 2D skeletal embedding to the 3D pose it depicts (Gesture3D Section 7).
+
+    Args:
+        skeleton: The full skeleton.
+        embedding: The 2D embedding of the drawing (pixels of ``camera``).
+        camera: The view the drawing was made in (orthographic approximation around the
+            character for perspective cameras).
+        pose: Current pose; its solving-bone rotations are ignored (the solve starts from
+            the bind pose), the other bones keep theirs. Defaults to the rest pose.
+        lock_rotation: Locked local rotation axes, ``(n, 3)`` bool (optional).
+        ik_limits: IK limits ``[min, max]`` per local axis, radians, ``(n, 3, 2)``, NaN when
+            unlimited (optional).
+        pinned: Bones that must keep their bind rotation, ``(n,)`` bool (optional).
+        options: Parameters (paper defaults).
+
+    Returns:
+        The solved pose and diagnostics.
+
+    Raises:
+        InputError: The embedding does not fit the skeleton.
+        SolverError: A QP could not be solved even with softened constraints.
+    """
+    opts = options or DepthOptions()
+    t0 = time.perf_counter()
+    base = pose if pose is not None else Pose.identity(skeleton.n_bones)
+    bones = np.asarray(embedding.solving.bones, dtype=int)
+    bind = base.with_rotations(bones, np.tile(np.eye(3), (len(bones), 1, 1)))
+    setup, X_rest, contacts, names = _setup(skeleton, embedding, camera, bind, opts)
+    timings = {"setup": time.perf_counter() - t0}
+    t1 = time.perf_counter()
+    current, _ = _start(skeleton, setup, embedding, bind, opts, pinned)
+    timings["start"] = time.perf_counter() - t1
+    jm = setup.jmap
+    warnings: list[str] = []
+    mean_len = float(np.mean(setup.lengths)) if len(setup.lengths) else 1.0
+    soften, converged, active, qp_time, it = False, False, (), 0.0, 0
+    t2 = time.perf_counter()
+    for it in range(1, opts.max_iterations + 1):  # noqa: B007 (reported after the loop)
+        X, state = twist.joint_positions(skeleton, jm, current)
+        G = twist.position_jacobian(jm, X, state)
+        dof = _dof_rows(skeleton, jm, current, state.frames[jm.bones], lock_rotation,
+                        ik_limits, pinned)
+        problem = build_qp(setup.terms, setup.constraints, dof, X.ravel(), G,
+                           alpha=opts.alpha, kappa=setup.kappa, soften=soften,
+                           rho=opts.soft_penalty)
+        try:
+            sol = solve_qp(problem)
+        except SolverError as err:
+            if soften or "infeasible" not in err.details.get("status", ""):
+                raise
+            soften = True
+            warnings.append("The drawing's depth cues contradict each other; the "
+                            "constraints were softened.")
+            problem = build_qp(setup.terms, setup.constraints, dof, X.ravel(), G,
+                               alpha=opts.alpha, kappa=setup.kappa, soften=True,
+                               rho=opts.soft_penalty)
+            sol = solve_qp(problem)
+        qp_time += sol.solve_time
+        active = sol.active
+        current = twist.apply_twists(skeleton, jm, current, state, sol.delta)
+        move = np.abs(G @ sol.delta.ravel()).max() if G.size else 0.0
+        if move < opts.tolerance * mean_len:
+            converged = True
+            break
+    timings["sqp"] = time.perf_counter() - t2
+    timings["qp"] = qp_time
+    if not converged:
+        warnings.append(f"The 3D solve stopped after {it} iterations without converging.")
+    symmetric: list[str] = []
+    if opts.symmetry_angle > 0:
+        t3 = time.perf_counter()
+        pairs = symmetry.mirror_pairs(skeleton.names, jm.bones)
+        if len(pairs):
+            current, symmetric = symmetry.symmetrize(skeleton, current, pairs,
+                                                     opts.symmetry_angle)
+        timings["symmetry"] = time.perf_counter() - t3
+    X, _ = twist.joint_positions(skeleton, jm, current)
+    depths = setup.frame.depth(X)
+    ok = ordering.violations(setup.order, depths) <= 1e-4 * mean_len
+    if not np.all(ok):
+        warnings.append(f"{int(np.sum(~ok))} depth-order constraint(s) are not met.")
+    equalities = tuple(lab for c in setup.constraints for lab, lo, hi in
+                       zip(c.labels, c.lower, c.upper, strict=True) if lo == hi)
+    energy = {t.name: t.value(X) for t in setup.terms}
+    timings["total"] = time.perf_counter() - t0
+    return Pose3DResult(
+        pose=current,
+        rotations=current.rotations[jm.bones].copy(),
+        bones=jm.bones.copy(),
+        joints3d=X,
+        e_conformity=energy["conformity"],
+        e_foreshortening=energy["foreshortening"],
+        e_spline=energy.get("spline", 0.0),
+        iterations=it,
+        converged=converged,
+        active=active,
+        ordering=tuple(setup.order),
+        ordering_satisfied=ok,
+        equalities=tuple(dict.fromkeys(equalities)),
+        contacts=contacts,
+        foreshortening=setup.ratios,
+        symmetric=tuple(symmetric),
+        timings=timings,
+        warnings=tuple(warnings),
+    )
+
+
+def root_view_axis(camera: Camera, point: np.ndarray) -> np.ndarray:
+    """Unit view direction at a world point (the axis :func:`symmetry.flip_depth` uses)."""
+    return normalize(camera.view_directions(np.asarray(point, float)[None])[0])

@@ -1,0 +1,144 @@
+"""The 3D lifting of gesture drawings (Gesture3D Section 7) on hand-built skeletons."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gesture_pose.core.gesture.depth import DepthOptions, solve_pose3d
+from gesture_pose.core.gesture.depth.synthetic import project_embedding, solving_skeleton
+from gesture_pose.core.gesture.embedding import posed_joints
+from gesture_pose.core.gesture.types import Occlusion
+from gesture_pose.core.rotations import exp_map
+from gesture_pose.core.skeleton import Pose
+from tests.core.fixtures import chain_skeleton, front_camera, tree_skeleton
+
+# front_camera looks along +y: image x is world x, image y is world z, depth is world y.
+FORWARD = np.array([0.0, 1.0, 0.0])
+
+
+def _vertical_chain(n: int = 5):
+    pts = np.stack([np.zeros(n + 1), np.zeros(n + 1), np.linspace(0.0, 2.0, n + 1)], 1)
+    return chain_skeleton(pts)
+
+
+def _pose_with_world_rotation(skeleton, bone: int, world_rotvec: np.ndarray) -> Pose:
+    """Rest pose with ``bone`` (and its subtree) rotated by a world rotation vector."""
+    pose = Pose.identity(skeleton.n_bones)
+    state = skeleton.forward(pose)
+    frame = state.frames[bone]
+    local = frame.T @ exp_map(np.asarray(world_rotvec, float)) @ frame
+    return pose.with_rotations(np.array([bone]), local[None])
+
+
+def test_flat_drawing_gives_pose_in_view_plane():
+    sk = _vertical_chain()
+    cam = front_camera(ortho=True)
+    # Bend the chain within the view plane only (rotations about the view axis).
+    pose = Pose.identity(sk.n_bones)
+    for b, angle in zip(range(sk.n_bones), (0.2, -0.5, 0.7, 0.4, -0.3), strict=True):
+        state = sk.forward(pose)
+        frame = state.frames[b]
+        pose = pose.with_rotations(np.array([b]), (frame.T @ exp_map(FORWARD * angle)
+                                                   @ frame @ pose.rotations[b])[None])
+    solving = solving_skeleton(sk)
+    emb = project_embedding(sk, solving, pose, cam)
+    res = solve_pose3d(sk, emb, cam)
+    depth = res.joints3d @ FORWARD
+    assert res.converged
+    assert np.ptp(depth) < 1e-4
+    truth = posed_joints(solving, sk, pose)
+    assert np.abs(res.joints3d - truth).max() < 1e-3
+    assert res.e_conformity < 1e-8
+
+
+@pytest.mark.parametrize("toward", [True, False])
+def test_foreshortened_limb_gets_depth_of_right_magnitude(toward):
+    sk = _vertical_chain()
+    cam = front_camera(ortho=True)
+    # Tilt the last bone by 60 degrees towards (or away from) the viewer: drawn at half length.
+    sign = -1.0 if toward else 1.0
+    pose = _pose_with_world_rotation(sk, 4, np.array([sign * np.radians(60.0), 0.0, 0.0]))
+    solving = solving_skeleton(sk)
+    emb = project_embedding(sk, solving, pose, cam)
+    res = solve_pose3d(sk, emb, cam, options=DepthOptions(toward_viewer=toward))
+    state = sk.forward(res.pose)
+    dz = (state.tails[4] - state.heads[4]) @ FORWARD
+    expected = sign * sk.lengths[4] * np.sin(np.radians(60.0))
+    assert res.foreshortening[-1] == pytest.approx(0.5, abs=1e-6)
+    assert dz == pytest.approx(expected, rel=0.02)
+    # The unforeshortened bones stay in the view plane.
+    others = (state.tails[:4] - state.heads[:4]) @ FORWARD
+    assert np.abs(others).max() < 1e-3
+
+
+def test_bone_lengths_are_exact_after_solving():
+    sk = tree_skeleton()
+    cam = front_camera(ortho=False)
+    rng = np.random.default_rng(7)
+    truth = Pose(exp_map(rng.normal(scale=0.6, size=(sk.n_bones, 3))), np.zeros((6, 3)))
+    solving = solving_skeleton(sk)
+    res = solve_pose3d(sk, project_embedding(sk, solving, truth, cam), cam)
+    state = sk.forward(res.pose)
+    np.testing.assert_allclose(np.linalg.norm(state.tails - state.heads, axis=1), sk.lengths,
+                               atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(res.rotations), 1.0, atol=1e-12)
+    assert res.iterations >= 1 and res.timings["total"] > 0.0
+
+
+def test_occlusion_decides_the_side_of_a_foreshortened_bone():
+    sk = tree_skeleton()
+    cam = front_camera(ortho=True)
+    # fore.L (bone 3) swings 60 degrees away from the viewer, about the world z axis.
+    truth = _pose_with_world_rotation(sk, 3, np.array([0.0, 0.0, np.radians(60.0)]))
+    solving = solving_skeleton(sk)
+    state = sk.forward(truth)
+    mid = cam.project(0.5 * (state.heads[3:4] + state.tails[3:4]))[0]
+    # The drawing shows the forearm behind the upper arm where they overlap.
+    occ = Occlusion(front_bone=2, back_bone=3, point2d=mid, front_radius=4.0, back_radius=3.0)
+    emb = project_embedding(sk, solving, truth, cam, occlusions=(occ,))
+    res = solve_pose3d(sk, emb, cam, options=DepthOptions(toward_viewer=True))
+    assert len(res.ordering) == 1
+    assert np.all(res.ordering_satisfied)
+    depths = res.joints3d @ FORWARD
+    c = res.ordering[0]
+    assert c.gap(depths) >= c.margin - 1e-6
+    solved = sk.forward(res.pose)
+    dz = (solved.tails[3] - solved.heads[3]) @ FORWARD
+    assert dz > 0.3 * sk.lengths[3]  # pushed behind, although the default is towards us
+    without = solve_pose3d(sk, project_embedding(sk, solving, truth, cam), cam)
+    dz0 = (sk.forward(without.pose).tails[3] - sk.forward(without.pose).heads[3]) @ FORWARD
+    assert dz0 < -0.3 * sk.lengths[3]
+
+
+def test_locked_axes_and_pinned_bones_are_respected():
+    sk = tree_skeleton()
+    cam = front_camera(ortho=True)
+    rng = np.random.default_rng(3)
+    truth = Pose(exp_map(rng.normal(scale=0.5, size=(6, 3))), np.zeros((6, 3)))
+    solving = solving_skeleton(sk)
+    emb = project_embedding(sk, solving, truth, cam)
+    lock = np.zeros((6, 3), bool)
+    lock[3] = [True, False, True]  # fore.L may only twist about its own y axis
+    pinned = np.zeros(6, bool)
+    pinned[5] = True
+    res = solve_pose3d(sk, emb, cam, lock_rotation=lock, pinned=pinned)
+    from gesture_pose.core.rotations import log_map
+
+    rv = log_map(res.pose.rotations)
+    assert np.abs(rv[3, [0, 2]]).max() < 1e-4
+    np.testing.assert_allclose(res.pose.rotations[5], np.eye(3), atol=1e-6)
+    # The free bones still moved towards the drawing.
+    assert np.abs(log_map(res.pose.rotations[2])).max() > 0.05
+
+
+def test_solve_starts_from_bind_pose_not_previous_result():
+    sk = tree_skeleton()
+    cam = front_camera(ortho=True)
+    rng = np.random.default_rng(11)
+    truth = Pose(exp_map(rng.normal(scale=0.5, size=(6, 3))), np.zeros((6, 3)))
+    solving = solving_skeleton(sk)
+    emb = project_embedding(sk, solving, truth, cam)
+    first = solve_pose3d(sk, emb, cam)
+    again = solve_pose3d(sk, emb, cam, first.pose)
+    np.testing.assert_allclose(again.joints3d, first.joints3d, atol=1e-9)
