@@ -159,10 +159,10 @@ class Skeleton:
         """Bone ``i`` and every bone below it, in skeleton order, shape ``(k,)``."""
         mask = np.zeros(self.n_bones, dtype=bool)
         mask[i] = True
-        for j in range(i + 1, self.n_bones):
-            p = self.parents[j]
-            if p >= 0 and mask[p]:
-                mask[j] = True
+        for level in self._levels:
+            kids = level[level > i]
+            if kids.size:
+                mask[kids] |= mask[self.parents[kids]]
         return np.flatnonzero(mask)
 
     def forward(self, pose: Pose) -> PoseState:

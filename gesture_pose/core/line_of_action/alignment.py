@@ -10,6 +10,7 @@ plane to ``x_i`` so the bone ends orthogonal to the view.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -104,7 +105,7 @@ def circle_of(
     h = plane_depth - float(view.depth(parent))
     h = max(-length, min(length, h))
     centre = parent + h * view.forward
-    return centre, float(np.sqrt(max(length * length - h * h, 0.0)))
+    return centre, math.sqrt(max(length * length - h * h, 0.0))
 
 
 def stroke_circle_crossing(
@@ -126,7 +127,8 @@ def stroke_circle_crossing(
         length: Segment length.
         plane_depth: View depth of the joint's plane.
         s_from: Only samples at or after this arc length are searched.
-        s_near: Preferred arc length (the feature point).
+        s_near: Preferred arc length (the feature point); the search ends as far beyond
+            it as ``s_from`` lies before it.
 
     Returns:
         The arc length of the crossing (linearly interpolated), or None if the stroke
@@ -134,7 +136,8 @@ def stroke_circle_crossing(
     """
     centre, radius = circle_of(view, parent, length, plane_depth)
     i0 = int(np.searchsorted(params, s_from))
-    o, d = origins[i0:], directions[i0:]
+    i1 = int(np.searchsorted(params, s_near + (s_near - s_from) + 4.0)) + 1
+    o, d = origins[i0:i1], directions[i0:i1]
     if len(o) < 2:
         return None
     t = (plane_depth - view.depth(o)) / (d @ view.forward)

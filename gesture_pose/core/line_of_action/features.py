@@ -68,7 +68,7 @@ def feature_param(
         half_window: Half-width of the search window, pixels
             (``||P x_{i+1} - P x_i|| / 3``).
         min_curvature: A sample only counts as a feature above this |curvature| and above
-            twice the window's median, so straight strokes keep the arc-length guess.
+            twice the window's mean, so straight strokes keep the arc-length guess.
 
     Returns:
         Arc length of the feature point, or ``guess`` when the window holds none.
@@ -83,7 +83,7 @@ def feature_param(
     if kappa.size < 3:
         return guess
     best = int(np.argmax(kappa))
-    if kappa[best] < max(min_curvature, 2.0 * float(np.median(kappa))):
+    if kappa[best] < max(min_curvature, 2.0 * float(kappa.mean())):
         return guess
     return float(sampled.params[idx][best])
 

@@ -8,6 +8,7 @@ a branch the child whose rotation has the smallest magnitude continues the chain
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,26 +22,45 @@ from .options import PlaneMode, StrokeOptions, Tracking
 _Y = np.array([0.0, 1.0, 0.0])
 
 
-def _axis_angle_matrix(axis: np.ndarray, angle: float) -> np.ndarray:
-    """Rodrigues' formula for one unit axis, shape ``(3, 3)``."""
-    x, y, z = axis
-    k = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
-
-
 def rotation_between3(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
-    """Smallest rotation taking unit vector ``a`` to unit vector ``b`` and its angle."""
-    axis = np.cross(a, b)
-    s = float(np.linalg.norm(axis))
-    c = float(np.clip(a @ b, -1.0, 1.0))
-    angle = float(np.arctan2(s, c))
+    """Smallest rotation taking unit vector ``a`` to unit vector ``b``, and its angle.
+
+    Written on Python floats: this runs once or twice per joint and numpy's per-call
+    overhead on 3-vectors would dominate the solve.
+
+    Args:
+        a: Unit vector, shape ``(3,)``.
+        b: Unit vector, shape ``(3,)``.
+
+    Returns:
+        ``(R (3, 3), angle in radians)`` with ``R a = b`` (Rodrigues:
+        ``R = cos t I + sin t [k]_x + (1 - cos t) k k^T``).
+    """
+    ax, ay, az = a.tolist()
+    bx, by, bz = b.tolist()
+    kx, ky, kz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    s = math.sqrt(kx * kx + ky * ky + kz * kz)
+    c = max(-1.0, min(1.0, ax * bx + ay * by + az * bz))
+    angle = math.atan2(s, c)
     if s < 1e-12:
         if c > 0.0:
             return np.eye(3), 0.0
-        helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        axis = np.cross(a, helper)
-        s = float(np.linalg.norm(axis))
-    return _axis_angle_matrix(axis / s, angle), angle
+        kx, ky, kz = (0.0, -az, ay) if abs(ax) < 0.9 else (az, 0.0, -ax)
+        s = math.sqrt(kx * kx + ky * ky + kz * kz)
+    kx, ky, kz = kx / s, ky / s, kz / s
+    sn, cs = math.sin(angle), math.cos(angle)
+    t = 1.0 - cs
+    return np.array([
+        [cs + t * kx * kx, t * kx * ky - sn * kz, t * kx * kz + sn * ky],
+        [t * kx * ky + sn * kz, cs + t * ky * ky, t * ky * kz - sn * kx],
+        [t * kx * kz - sn * ky, t * ky * kz + sn * kx, cs + t * kz * kz],
+    ]), angle
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    x, y, z = v.tolist()
+    n = math.sqrt(x * x + y * y + z * z)
+    return np.array([x / n, y / n, z / n])
 
 
 def twist_about_y(q: np.ndarray) -> np.ndarray:
@@ -74,9 +94,10 @@ class ChainState:
 
     def subtree(self, skeleton: Skeleton, bone: int) -> np.ndarray:
         """Bone ``bone`` and its descendants (cached)."""
-        if bone not in self.subtrees:
-            self.subtrees[bone] = skeleton.descendants(bone)
-        return self.subtrees[bone]
+        found = self.subtrees.get(bone)
+        if found is None:
+            found = self.subtrees[bone] = skeleton.descendants(bone)
+        return found
 
     def rotate_bone(self, skeleton: Skeleton, bone: int, new_local: np.ndarray) -> None:
         """Set a bone's local rotation; its subtree turns rigidly about its head."""
@@ -111,11 +132,9 @@ def aimed_rotation(cs: ChainState, bone: int, seg_end: np.ndarray,
     head = cs.heads[bone]
     frame, q = cs.frames[bone], cs.rotations[bone]
     carry = frame @ q.T
-    cur = seg_end - head
-    cur_dir = cur / np.linalg.norm(cur)
-    new = new_end - head
-    new_dir = new / np.linalg.norm(new)
-    _, angle = rotation_between3(cur_dir, new_dir)
+    cur_dir = _unit(seg_end - head)
+    new_dir = _unit(new_end - head)
+    angle = math.acos(max(-1.0, min(1.0, float(cur_dir @ new_dir))))
     target_local = carry.T @ new_dir
     seg_local = frame.T @ cur_dir
     if seg_local @ _Y > 1.0 - 1e-9:
@@ -189,10 +208,9 @@ class _Walker:
             px = self.view.project(np.stack([start, end]))
         return float(np.linalg.norm(px[1] - px[0]))
 
-    def target(self, s_prev: float, seg_start: np.ndarray, seg_end: np.ndarray,
+    def target(self, s_prev: float, lp: float,
                landed_prev: np.ndarray) -> tuple[float, np.ndarray]:
-        """Feature arc length (Eq. 2) and target pixel of a segment's end."""
-        lp = self.projected_length(seg_start, seg_end)
+        """Feature arc length (Eq. 2) and target pixel of a segment projecting to ``lp`` px."""
         guess = min(s_prev + lp, self.sampled.length)
         s = guess
         if self.opt.feature_extraction:
@@ -202,21 +220,27 @@ class _Walker:
         return s, self.sampled.at(s)
 
     def try_bone(self, bone: int, seg_end: np.ndarray, end_child: int, s_prev: float,
-                 landed_prev: np.ndarray) -> tuple[np.ndarray | None, float, float, np.ndarray]:
-        """Placement of one bone's segment: (rotation or None if skipped, angle, s, target).
+                 landed_prev: np.ndarray) -> tuple[np.ndarray | None, float, float, np.ndarray,
+                                                   float]:
+        """Placement of one bone's segment.
 
         ``end_child`` is the child whose head ends the segment, or -1 for the bone's tail.
+
+        Returns:
+            ``(rotation or None if skipped, angle, feature arc length, target pixel,
+            projected segment length in pixels)``.
         """
         head = self.cs.heads[bone]
-        length = float(np.linalg.norm(seg_end - head))
+        dx, dy, dz = (seg_end - head).tolist()
+        length = math.sqrt(dx * dx + dy * dy + dz * dz)
         if length < 1e-12:
-            return None, 0.0, s_prev, landed_prev
+            return None, 0.0, s_prev, landed_prev, 0.0
         original = self.tail_depth[bone] if end_child < 0 else self.head_depth[end_child]
         depth = joint_plane_depth(self.view, head, seg_end, length, original, self.plane,
                                   self.opt.view_axis_tolerance)
-        s, tgt = self.target(s_prev, head, seg_end, landed_prev)
+        lp = self.projected_length(head, seg_end)
+        s, tgt = self.target(s_prev, lp, landed_prev)
         if self.crossing:
-            lp = self.projected_length(head, seg_end)
             root = stroke_circle_crossing(
                 self.view, self.origins, self.directions, self.sampled.params, head, length,
                 depth, s_prev, s)
@@ -225,9 +249,9 @@ class _Walker:
         placed = place_joint(self.view, head, seg_end, length, tgt, depth,
                              self.opt.view_axis_tolerance)
         if placed.skipped:
-            return None, 0.0, s, tgt
+            return None, 0.0, s, tgt, lp
         rot, angle = aimed_rotation(self.cs, bone, seg_end, placed.position)
-        return rot, angle, s, tgt
+        return rot, angle, s, tgt, lp
 
 
 def _segment_ends(skeleton: Skeleton, cs: ChainState, bone: int,
@@ -280,10 +304,9 @@ def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: Cha
         best = int(np.argmin([r[1] if r[0] is not None else np.inf for r in results]))
         if results[best][0] is None:
             best = 0
-        rot, angle, s, tgt = results[best]
+        rot, angle, s, tgt, lp = results[best]
         end, members = ends[best]
         if spec.stop_when_exhausted and fixed is None and pos > 0:
-            lp = walker.projected_length(cs.heads[bone], end)
             if sampled.length - s_prev < 0.5 * lp:
                 break
         offset_local = cs.frames[bone].T @ (end - cs.heads[bone])
@@ -294,8 +317,7 @@ def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: Cha
         new_end = cs.heads[bone] + cs.frames[bone] @ offset_local
         land = view.project(new_end)
         if options.tracking is Tracking.POSITION and options.feature_extraction:
-            s = renormalize_param(sampled, land, s, max(walker.projected_length(
-                cs.heads[bone], new_end) / 3.0, 2.0 * sampled.step))
+            s = renormalize_param(sampled, land, s, max(lp / 3.0, 2.0 * sampled.step))
         bones.append(bone)
         targets.append(tgt)
         landed.append(land)
@@ -316,6 +338,6 @@ def _choose(skeleton: Skeleton, walker: _Walker, candidates: np.ndarray, s_prev:
     cs = walker.cs
     angles = []
     for c in candidates:
-        rot, angle, _, _ = walker.try_bone(int(c), cs.tails[c], -1, s_prev, landed_prev)
+        rot, angle, _, _, _ = walker.try_bone(int(c), cs.tails[c], -1, s_prev, landed_prev)
         angles.append(angle if rot is not None else np.inf)
     return int(candidates[int(np.argmin(angles))])
