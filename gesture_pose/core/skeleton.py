@@ -92,6 +92,7 @@ class Skeleton:
     connected: np.ndarray
     deform: np.ndarray
     _levels: tuple[np.ndarray, ...] = field(init=False, repr=False, compare=False)
+    _ancestry: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         """Validate shapes and parent order, then cache the per-depth bone groups."""
@@ -120,8 +121,12 @@ class Skeleton:
         for i in range(n):
             depth[i] = 0 if parents[i] < 0 else depth[parents[i]] + 1
         levels = tuple(np.flatnonzero(depth == d) for d in range(depth.max() + 1))
+        ancestry = np.eye(n, dtype=bool)  # ancestry[i, j]: j is i or an ancestor of i
+        for level in levels[1:]:
+            ancestry[level] |= ancestry[parents[level]]
         object.__setattr__(self, "parents", parents)
         object.__setattr__(self, "_levels", levels)
+        object.__setattr__(self, "_ancestry", ancestry)
 
     @property
     def n_bones(self) -> int:
@@ -157,13 +162,7 @@ class Skeleton:
 
     def descendants(self, i: int) -> np.ndarray:
         """Bone ``i`` and every bone below it, in skeleton order, shape ``(k,)``."""
-        mask = np.zeros(self.n_bones, dtype=bool)
-        mask[i] = True
-        for level in self._levels:
-            kids = level[level > i]
-            if kids.size:
-                mask[kids] |= mask[self.parents[kids]]
-        return np.flatnonzero(mask)
+        return np.flatnonzero(self._ancestry[:, i])
 
     def forward(self, pose: Pose) -> PoseState:
         """Forward kinematics, vectorized over the bones of each tree depth.
