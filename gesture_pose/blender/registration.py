@@ -17,6 +17,7 @@ MODULES: tuple[str, ...] = (
     "properties",
     "panel",
     "operators.pose_stroke",
+    "operators.abstraction",
 )
 
 

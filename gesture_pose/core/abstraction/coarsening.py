@@ -23,6 +23,8 @@ from ..exceptions import InputError
 
 #: Representative vertices of the paper.
 DEFAULT_K = 200
+#: Vertices the k-means++ seeding looks at (a random subset of larger meshes).
+_SEED_SAMPLE = 1500
 #: Neighbouring representatives per representative in ``W_dist``.
 DEFAULT_NEIGHBOURS = 6
 
@@ -91,8 +93,10 @@ def coarsen(vertices: np.ndarray, k: int = DEFAULT_K, neighbours: int = DEFAULT_
         masses = np.ones(len(v))
         labels = idx.copy()
     else:
-        centroids, labels = kmeans2(v, k, minit="++", seed=np.random.default_rng(seed),
-                                    iter=10)
+        rng = np.random.default_rng(seed)
+        sample = v if len(v) <= _SEED_SAMPLE else v[rng.choice(len(v), _SEED_SAMPLE, False)]
+        seeds, _ = kmeans2(sample, k, minit="++", seed=rng, iter=1)
+        centroids, labels = kmeans2(v, seeds, minit="matrix", iter=10)
         used = np.unique(labels)
         d = np.linalg.norm(v - centroids[labels], axis=1)
         order = np.lexsort((d, labels))

@@ -44,6 +44,23 @@ def rest_matrices(skeleton: Skeleton) -> np.ndarray:
     return out
 
 
+def rigid_inverse(m: np.ndarray) -> np.ndarray:
+    """Inverse of rigid transforms ``[R | t]``: ``[R^T | -R^T t]``, shape ``(..., 4, 4)``."""
+    out = np.zeros_like(m)
+    rt = np.swapaxes(m[..., :3, :3], -1, -2)
+    out[..., :3, :3] = rt
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", rt, m[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a x b`` with broadcasting over leading axes (faster than ``np.cross`` here)."""
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+
+
 def descendant_matrix(skeleton: Skeleton) -> np.ndarray:
     """``D[j, b] = 1`` when bone ``j`` is ``b`` or below it, shape ``(n, n)`` float."""
     n = skeleton.n_bones
@@ -102,7 +119,7 @@ def pose_bones(skeleton: Skeleton, pose: RigPose) -> PosedBones:
     rest_local = rest @ local
     world = np.empty((n, 4, 4))
     parents = skeleton.parents
-    rest_inv = np.linalg.inv(rest)
+    rest_inv = rigid_inverse(rest)
     for level in _levels(parents):
         p = parents[level]
         roots, kids, kp = level[p < 0], level[p >= 0], p[p >= 0]
@@ -144,7 +161,9 @@ def lbs_weighted_rest(rest_points: np.ndarray, weights: np.ndarray) -> np.ndarra
 
 def skin(posed: PosedBones, weighted_rest: np.ndarray) -> np.ndarray:
     """Posed positions ``x_v = sum_j G_j Y_vj`` (Eq. 13), shape ``(m, 3)``."""
-    return np.einsum("nij,mnj->mi", posed.skinning[:, :3, :], weighted_rest)
+    m, n = weighted_rest.shape[:2]
+    stacked = np.swapaxes(posed.skinning[:, :3, :], 1, 2).reshape(n * 4, 3)
+    return weighted_rest.reshape(m, n * 4) @ stacked
 
 
 @dataclass(frozen=True)
@@ -198,14 +217,15 @@ def point_jacobian(posed: PosedBones, weighted_rest: np.ndarray, space: Paramete
         ``J``, shape ``(m, 3, P)``, world units per radian / per unit scale / per unit.
     """
     m = len(weighted_rest)
-    per_bone = np.einsum("nij,mnj->mni", posed.skinning[:, :3, :], weighted_rest)
+    per_bone = np.matmul(posed.skinning[None, :, :3, :], weighted_rest[..., None])[..., 0]
     wsub = weighted_rest[:, :, 3] @ dmat
-    rel = np.einsum("mjc,jb->mbc", per_bone, dmat) - wsub[:, :, None] * posed.heads[None]
+    rel = np.swapaxes(np.swapaxes(per_bone, 1, 2) @ dmat, 1, 2)
+    rel -= wsub[:, :, None] * posed.heads[None]
     blocks = []
     rb = space.rotation_bones
     if rb.size:
         axes = np.swapaxes(posed.frames[rb], 1, 2)  # (r, k, xyz): world axis F e_k
-        jr = np.cross(axes[None, :, :, :], rel[:, rb, None, :])  # (m, r, k, xyz)
+        jr = _cross(axes[None, :, :, :], rel[:, rb, None, :])  # (m, r, k, xyz)
         blocks.append(np.transpose(jr, (0, 3, 1, 2)).reshape(m, 3, -1))
     sb = space.scale_bones
     if sb.size:

@@ -72,6 +72,9 @@ class SolveOptions:
         lambda_dist: Weight of ``W_dist`` (Eq. 10).
         max_iterations: ICP iterations at most.
         tolerance: Stop when the relative energy decrease is below this.
+        residual_tolerance_px: Stop when the RMS matching distance is below this (pixels).
+        stall_iterations: Stop when the RMS matching distance improved by less than 1 %
+            (and 0.005 px) over this many iterations.
         bounded: Solve updates as bounded QPs (False: the paper's unbounded update).
         limits: Scale bounds, IK limits and trust box of the bounded update.
         line_search_steps: Step halvings tried when the energy does not decrease.
@@ -88,7 +91,9 @@ class SolveOptions:
     lambda_plane: float = LAMBDA_PLANE
     lambda_dist: float = LAMBDA_DIST
     max_iterations: int = 50
-    tolerance: float = 1e-5
+    tolerance: float = 1e-4
+    residual_tolerance_px: float = 0.02
+    stall_iterations: int = 4
     bounded: bool = True
     limits: StepLimits = field(default_factory=StepLimits)
     line_search_steps: int = 8
@@ -139,6 +144,7 @@ class SolveResult:
         residual_px: Final RMS matching distance, pixels.
         initial_residual_px: RMS matching distance before the solve, pixels.
         energies: Total energy after each iteration (world units squared).
+        residuals_px: RMS matching distance after each iteration, pixels.
         seconds: Wall time of the solve.
         iteration_seconds: Wall time of each iteration.
         qp_iterations: OSQP iterations over all updates.
@@ -153,12 +159,21 @@ class SolveResult:
     residual_px: float
     initial_residual_px: float
     energies: tuple[float, ...]
+    residuals_px: tuple[float, ...]
     seconds: float
     iteration_seconds: tuple[float, ...]
     qp_iterations: int
     active_bounds: tuple[str, ...]
     pairs: tuple[tuple[int, int], ...]
     warnings: tuple[str, ...] = ()
+
+
+def _stalled(residuals: list[float], window: int) -> bool:
+    """Whether the RMS residual stopped improving over the last ``window`` iterations."""
+    if len(residuals) <= window:
+        return False
+    before = residuals[-1 - window]
+    return before - min(residuals[-window:]) < 0.01 * before + 0.005
 
 
 def _rms_px(camera: Camera, x: np.ndarray, corr: Correspondences) -> float:
@@ -168,10 +183,10 @@ def _rms_px(camera: Camera, x: np.ndarray, corr: Correspondences) -> float:
 
 def _objective(camera: Camera, x: np.ndarray, z_old: np.ndarray, z_new: np.ndarray,
                corr: Correspondences, coarse: Coarsening, z_start: np.ndarray, rest_d: np.ndarray,
-               lambdas: tuple[float, float, float], ppu: float) -> float:
-    match = _rms_px(camera, x, corr) ** 2 / ppu**2
+               lambdas: tuple[float, float, float], ppu: float) -> tuple[float, float]:
+    rms = _rms_px(camera, x, corr)
     reg = full_regularizer_value(camera, z_old, z_new, coarse, z_start, rest_d, lambdas)
-    return match + sum(reg.values())
+    return rms**2 / ppu**2 + sum(reg.values()), rms
 
 
 def solve_abstraction(problem: AbstractionProblem,
@@ -207,7 +222,7 @@ def solve_abstraction(problem: AbstractionProblem,
     strokes = list(problem.strokes)
     corr0 = build_correspondences(px, layout, strokes, pairs, opt.correspondence)
     initial = _rms_px(cam, x, corr0)
-    energies, times = [], []
+    energies, times, residuals = [], [], []
     qp_iters, active, converged, warnings = 0, (), False, []
     it, damping = 0, 1.0
     while it < opt.max_iterations:
@@ -233,10 +248,10 @@ def solve_abstraction(problem: AbstractionProblem,
             if opt.bounded:
                 cand = project_to_limits(cand, space, opt.limits)
             xc, zc = rig.evaluate(cand)
-            e_c = _objective(cam, xc, z, zc, corr, coarse, z_start, rest_d,
+            e_c, rms = _objective(cam, xc, z, zc, corr, coarse, z_start, rest_d,
                              lambdas, ppu)
             if np.isfinite(e_c) and e_c <= energy:
-                accepted = (cand, e_c)
+                accepted = (cand, e_c, rms)
                 break
             alpha *= 0.5
         times.append(time.perf_counter() - t_it)
@@ -247,12 +262,14 @@ def solve_abstraction(problem: AbstractionProblem,
                 continue
             converged = True
             break
-        pose, new_energy = accepted
+        pose, new_energy, rms = accepted
+        residuals.append(rms)
         if alpha == 1.0:
             damping = max(opt.min_damping, damping * opt.damping_decay)
         energies.append(new_energy)
         if energy - new_energy <= opt.tolerance * max(energy, 1e-300) \
-                or alpha * np.abs(dp).max() < 1e-9:
+                or alpha * np.abs(dp).max() < 1e-9 or rms < opt.residual_tolerance_px \
+                or _stalled(residuals, opt.stall_iterations):
             converged = True
             break
     x, _ = rig.evaluate(pose)
@@ -262,5 +279,5 @@ def solve_abstraction(problem: AbstractionProblem,
     if not converged:
         warnings.append(f"Stopped after {it} iterations before converging.")
     return SolveResult(pose, it, converged, _rms_px(cam, x, final), initial, tuple(energies),
-                       time.perf_counter() - t_start, tuple(times), qp_iters, tuple(active),
-                       pairs, tuple(warnings))
+                       tuple(residuals), time.perf_counter() - t_start, tuple(times),
+                       qp_iters, tuple(active), pairs, tuple(warnings))

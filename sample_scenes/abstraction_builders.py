@@ -1,0 +1,209 @@
+"""Sketch abstractions for the sample humanoid, and the "abstraction" sample scene.
+
+:func:`add_abstractions` gives a character built by :func:`builders.build_humanoid` two
+authored abstractions (Hahn et al. 2015) in a "Sketch Abstraction" collection:
+
+- "Stick Figure": a mesh of edge chains along the spine, arms and legs, each vertex in the
+  vertex group of its bone (weight 1), deformed by an Armature modifier;
+- "Outline": a U-shaped contour around every limb and the torso in the front view, whose
+  vertices copy the bone weights of the nearest character vertex.
+
+:func:`save_abstraction_scene` saves a scene with the humanoid, both abstractions, a front
+camera and a Grease Pencil "Sketch" holding a redrawn stick figure (the "wave" pose).
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from sample_scenes import builders  # noqa: E402
+
+COLLECTION = "Sketch Abstraction"
+STICK_CHAINS: tuple[tuple[str, ...], ...] = (
+    ("pelvis", "spine", "spine.001", "chest", "neck", "head"),
+    ("upper_arm.L", "forearm.L", "hand.L"),
+    ("upper_arm.R", "forearm.R", "hand.R"),
+    ("thigh.L", "shin.L", "foot.L"),
+    ("thigh.R", "shin.R", "foot.R"),
+)
+#: Half-widths of the outline around each chain (metres, in the front view).
+OUTLINE_WIDTH = (0.16, 0.06, 0.06, 0.08, 0.08)
+
+
+def _bone_points(arm_obj: bpy.types.Object, name: str) -> tuple[np.ndarray, np.ndarray]:
+    bone = arm_obj.data.bones[name]
+    m = np.array(arm_obj.matrix_world)
+    return (m[:3, :3] @ np.array(bone.head_local) + m[:3, 3],
+            m[:3, :3] @ np.array(bone.tail_local) + m[:3, 3])
+
+
+def _collection(name: str, parent: bpy.types.Collection) -> bpy.types.Collection:
+    coll = bpy.data.collections.get(name) or bpy.data.collections.new(name)
+    if coll.name not in parent.children:
+        parent.children.link(coll)
+    return coll
+
+
+def _edge_mesh(name: str, polylines: Sequence[np.ndarray], weights: Sequence[np.ndarray],
+               arm_obj: bpy.types.Object, coll: bpy.types.Collection) -> bpy.types.Object:
+    """A mesh of edge chains with bone vertex groups and an Armature modifier."""
+    verts = np.concatenate(polylines)
+    edges, start = [], 0
+    for p in polylines:
+        edges += [(start + i, start + i + 1) for i in range(len(p) - 1)]
+        start += len(p)
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(verts.tolist(), edges, [])
+    obj = bpy.data.objects.new(name, mesh)
+    coll.objects.link(obj)
+    w = np.concatenate(weights)
+    names = [b.name for b in arm_obj.data.bones]
+    for j, bone in enumerate(names):
+        idx = np.flatnonzero(w[:, j] > 1e-6)
+        if idx.size:
+            group = obj.vertex_groups.new(name=bone)
+            for i in idx:
+                group.add([int(i)], float(w[i, j]), "REPLACE")
+    mod = obj.modifiers.new("Armature", "ARMATURE")
+    mod.object = arm_obj
+    obj.hide_render = True
+    return obj
+
+
+def add_stick_figure(arm_obj: bpy.types.Object, coll: bpy.types.Collection,
+                     per_bone: int = 4) -> bpy.types.Object:
+    """The "Stick Figure" abstraction: edge chains along :data:`STICK_CHAINS`."""
+    names = [b.name for b in arm_obj.data.bones]
+    polylines, weights = [], []
+    for chain in STICK_CHAINS:
+        pts, w = [], []
+        for k, bone in enumerate(chain):
+            head, tail = _bone_points(arm_obj, bone)
+            s = np.linspace(0.0, 1.0, per_bone + 1)
+            s = s if k == len(chain) - 1 else s[:-1]
+            pts.append(head + s[:, None] * (tail - head))
+            wb = np.zeros((len(s), len(names)))
+            wb[:, names.index(bone)] = 1.0
+            w.append(wb)
+        polylines.append(np.concatenate(pts))
+        weights.append(np.concatenate(w))
+    return _edge_mesh("Stick Figure", polylines, weights, arm_obj, coll)
+
+
+def _mesh_weights(mesh_obj: bpy.types.Object, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    co = np.empty(len(mesh_obj.data.vertices) * 3)
+    mesh_obj.data.vertices.foreach_get("co", co)
+    m = np.array(mesh_obj.matrix_world)
+    pts = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+    col = {g.index: names.index(g.name) for g in mesh_obj.vertex_groups if g.name in names}
+    w = np.zeros((len(pts), len(names)))
+    for v in mesh_obj.data.vertices:
+        for g in v.groups:
+            if g.group in col:
+                w[v.index, col[g.group]] += g.weight
+    return pts, w
+
+
+def add_outline(arm_obj: bpy.types.Object, mesh_obj: bpy.types.Object,
+                coll: bpy.types.Collection, samples: int = 6) -> bpy.types.Object:
+    """The "Outline" abstraction: a U-shaped contour around each chain in the front view."""
+    from scipy.spatial import cKDTree
+
+    names = [b.name for b in arm_obj.data.bones]
+    mesh_pts, mesh_w = _mesh_weights(mesh_obj, names)
+    tree = cKDTree(mesh_pts)
+    polylines, weights = [], []
+    for chain, width in zip(STICK_CHAINS, OUTLINE_WIDTH, strict=True):
+        joints = [_bone_points(arm_obj, chain[0])[0]] + [_bone_points(arm_obj, b)[1]
+                                                           for b in chain]
+        joints = np.array(joints)
+        t = np.linspace(0.0, 1.0, samples * (len(joints) - 1) + 1)
+        seg = np.minimum((t * (len(joints) - 1)).astype(int), len(joints) - 2)
+        f = t * (len(joints) - 1) - seg
+        line = joints[seg] + f[:, None] * (joints[seg + 1] - joints[seg])
+        d = np.gradient(line, axis=0)
+        side = np.stack([-d[:, 2], np.zeros(len(d)), d[:, 0]], axis=1)
+        side /= np.maximum(np.linalg.norm(side, axis=1, keepdims=True), 1e-9)
+        poly = np.concatenate([line + width * side, (line - width * side)[::-1]])
+        _, nearest = tree.query(poly)
+        polylines.append(poly)
+        weights.append(mesh_w[nearest])
+    return _edge_mesh("Outline", polylines, weights, arm_obj, coll)
+
+
+def add_abstractions(arm_obj: bpy.types.Object, mesh_obj: bpy.types.Object
+                     ) -> tuple[bpy.types.Object, bpy.types.Object]:
+    """Add the "Stick Figure" and "Outline" abstractions (in that order) to a humanoid.
+
+    Returns:
+        ``(stick_figure, outline)`` mesh objects, in collections of the same names inside
+        the "Sketch Abstraction" collection.
+    """
+    root = _collection(COLLECTION, bpy.context.scene.collection)
+    stick = add_stick_figure(arm_obj, _collection("Stick Figure", root))
+    outline = add_outline(arm_obj, mesh_obj, _collection("Outline", root))
+    bpy.context.view_layer.update()
+    return stick, outline
+
+
+def evaluated_polylines(obj: bpy.types.Object) -> list[np.ndarray]:
+    """World polylines of an edge-chain abstraction as currently deformed."""
+    from gesture_pose.blender.read_strokes import chain_edges
+
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    ev = obj.evaluated_get(depsgraph)
+    mesh = ev.to_mesh()
+    try:
+        co = np.empty(len(mesh.vertices) * 3)
+        mesh.vertices.foreach_get("co", co)
+        edges = np.empty(len(mesh.edges) * 2, dtype=np.int64)
+        mesh.edges.foreach_get("vertices", edges)
+    finally:
+        ev.to_mesh_clear()
+    m = np.array(ev.matrix_world)
+    pts = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+    return [pts[c] for c in chain_edges(edges.reshape(-1, 2), len(pts))]
+
+
+def save_abstraction_scene(path: str | Path, pose_name: str = "wave") -> Path:
+    """Build and save the abstraction sample scene.
+
+    The humanoid stays in its rest pose; the "Sketch" Grease Pencil object holds the stick
+    figure of ``pose_name`` as five strokes, ready for "Pose from Abstraction".
+
+    Args:
+        path: Output ``.blend`` path.
+        pose_name: Example pose whose stick figure is drawn.
+
+    Returns:
+        The saved path.
+    """
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    arm_obj, mesh_obj = builders.build_humanoid()
+    stick, _ = add_abstractions(arm_obj, mesh_obj)
+    builders.add_light()
+    builders.add_camera(arm_obj, resolution=(960, 960), margin=1.5)
+    builders.pose_humanoid(arm_obj, pose_name)
+    bpy.context.view_layer.update()
+    strokes = evaluated_polylines(stick)
+    builders.pose_humanoid(arm_obj, "rest")
+    builders.add_grease_pencil("Sketch", strokes)
+    bpy.context.scene["gesture_pose_sample"] = "abstraction"
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    bpy.ops.wm.save_as_mainfile(filepath=str(out), compress=True)
+    return out
+
+
+if __name__ == "__main__":
+    print(save_abstraction_scene(sys.argv[1] if len(sys.argv) > 1
+                                 else ROOT / "sample_scenes" / "abstraction.blend"))
