@@ -291,3 +291,25 @@ def test_pinned_bone_keeps_world_position() -> None:
                                atol=1e-9)
     # Without the pin the stroke would have moved it far.
     assert np.linalg.norm(sk.forward(free.pose).heads[3] - before.heads[3]) > 0.3
+
+
+def test_long_chain_stays_rigid_and_orthonormal() -> None:
+    # 45 joints: rounding in the rigid subtree updates must not compound along the chain.
+    rng = np.random.default_rng(11)
+    angles = np.cumsum(rng.normal(0.0, 0.08, 44))
+    seg = np.stack([np.sin(angles), np.zeros(44), np.cos(angles)], 1) * (1.6 / 44)
+    sk = chain_skeleton(np.vstack([[0, 0, 0], np.cumsum(seg, axis=0)]),
+                        rolls=rng.uniform(-np.pi, np.pi, 44))
+    cam = front_camera()
+    p0 = cam.project(sk.rest_heads[:1])[0]
+    theta = np.linspace(0, 1.5 * np.pi, 800)
+    stroke = Stroke(p0 + 120 * np.stack([1 - np.cos(theta), np.sin(theta)], 1)
+                    + np.stack([theta * 20, theta * 30], 1))
+    res = pose_from_stroke(sk, Pose.identity(44), cam, stroke)
+    q = res.pose.rotations
+    np.testing.assert_allclose(np.swapaxes(q, 1, 2) @ q, np.tile(np.eye(3), (44, 1, 1)),
+                               atol=1e-12)
+    new = sk.forward(res.pose)
+    np.testing.assert_allclose(np.linalg.norm(new.tails - new.heads, axis=1), sk.lengths,
+                               atol=1e-9)
+    assert len(res.chain) > 30 and res.mean_distance < 0.5

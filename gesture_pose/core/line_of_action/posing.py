@@ -57,6 +57,22 @@ def rotation_between3(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
     ]), angle
 
 
+def _proper_rotation(m: np.ndarray) -> np.ndarray:
+    """Gram-Schmidt projection of a nearly orthonormal ``(3, 3)`` matrix onto SO(3).
+
+    The rigid motion of a bone's subtree is built from frames that carry rounding error;
+    without this projection that error would triple at every joint of a long chain.
+    """
+    (a, d, g), (b, e, h) = m[:, 0].tolist(), m[:, 1].tolist()
+    n = math.sqrt(a * a + d * d + g * g)
+    a, d, g = a / n, d / n, g / n
+    dot = a * b + d * e + g * h
+    b, e, h = b - dot * a, e - dot * d, h - dot * g
+    n = math.sqrt(b * b + e * e + h * h)
+    b, e, h = b / n, e / n, h / n
+    return np.array([[a, b, d * h - g * e], [d, e, g * b - a * h], [g, h, a * e - d * b]])
+
+
 def _unit(v: np.ndarray) -> np.ndarray:
     x, y, z = v.tolist()
     n = math.sqrt(x * x + y * y + z * z)
@@ -102,7 +118,7 @@ class ChainState:
     def rotate_bone(self, skeleton: Skeleton, bone: int, new_local: np.ndarray) -> None:
         """Set a bone's local rotation; its subtree turns rigidly about its head."""
         carry = self.frames[bone] @ self.rotations[bone].T
-        world = carry @ new_local @ self.frames[bone].T
+        world = _proper_rotation(carry @ new_local @ self.frames[bone].T)
         idx = self.subtree(skeleton, bone)
         pivot = self.heads[bone]
         self.frames[idx] = world @ self.frames[idx]
