@@ -93,6 +93,7 @@ class Skeleton:
     deform: np.ndarray
     _levels: tuple[np.ndarray, ...] = field(init=False, repr=False, compare=False)
     _ancestry: np.ndarray = field(init=False, repr=False, compare=False)
+    _fk: tuple = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         """Validate shapes and parent order, then cache the per-depth bone groups."""
@@ -127,6 +128,33 @@ class Skeleton:
         object.__setattr__(self, "parents", parents)
         object.__setattr__(self, "_levels", levels)
         object.__setattr__(self, "_ancestry", ancestry)
+        object.__setattr__(self, "_fk", self._forward_tables())
+
+    def _forward_tables(self) -> tuple:
+        """Constant parts of forward kinematics, computed once.
+
+        Returns:
+            ``(rel_rot (n, 3, 3), rel_off (n, 3), steps, lengths (n,))`` where
+            ``rel_rot_i = R_p^T R_i`` and ``rel_off_i = R_p^T (r_i - r_p)`` (``R_i`` and
+            ``r_i`` for roots) and ``steps`` holds ``(children, parents, children that do
+            not inherit rotation)`` per tree depth.
+        """
+        rest = np.asarray(self.rest_frames, dtype=float)
+        heads = np.asarray(self.rest_heads, dtype=float)
+        p = self.parents
+        has_parent = p >= 0
+        par_rest = np.where(has_parent[:, None, None], rest[np.maximum(p, 0)], np.eye(3))
+        par_head = np.where(has_parent[:, None], heads[np.maximum(p, 0)], 0.0)
+        rel_rot = np.swapaxes(par_rest, 1, 2) @ rest
+        rel_off = np.einsum("nji,nj->ni", par_rest, heads - par_head)
+        free = has_parent & ~np.asarray(self.inherit_rotation, bool)
+        steps = []
+        for level in self._levels:
+            kids = level[has_parent[level]]
+            if kids.size:
+                steps.append((kids, p[kids], kids[free[kids]]))
+        lengths = np.linalg.norm(np.asarray(self.rest_tails, float) - heads, axis=1)
+        return rel_rot, rel_off, tuple(steps), lengths
 
     @property
     def n_bones(self) -> int:
@@ -136,7 +164,7 @@ class Skeleton:
     @property
     def lengths(self) -> np.ndarray:
         """Bone lengths, shape ``(n,)``, world units."""
-        return np.linalg.norm(self.rest_tails - self.rest_heads, axis=1)
+        return self._fk[3].copy()
 
     def index(self, name: str) -> int:
         """Index of the bone called ``name``.
@@ -173,25 +201,18 @@ class Skeleton:
         Returns:
             World-space heads, tails and frames.
         """
-        n = self.n_bones
-        rest = self.rest_frames
-        local_rot = rest @ np.asarray(pose.rotations, dtype=float)
-        offset_t = np.einsum("nij,nj->ni", rest, np.asarray(pose.translations, dtype=float))
-        frames = np.empty((n, 3, 3))
-        heads = np.empty((n, 3))
-        for level in self._levels:
-            p = self.parents[level]
-            root = p < 0
-            r_idx, c_idx, c_par = level[root], level[~root], p[~root]
-            frames[r_idx] = local_rot[r_idx]
-            heads[r_idx] = self.rest_heads[r_idx] + offset_t[r_idx]
-            if c_idx.size:
-                carry = frames[c_par] @ np.swapaxes(rest[c_par], 1, 2)
-                inherit = self.inherit_rotation[c_idx][:, None, None]
-                frames[c_idx] = np.where(inherit, carry @ local_rot[c_idx], local_rot[c_idx])
-                rel = self.rest_heads[c_idx] - self.rest_heads[c_par] + offset_t[c_idx]
-                heads[c_idx] = heads[c_par] + np.einsum("nij,nj->ni", carry, rel)
-        tails = heads + frames[:, :, 1] * self.lengths[:, None]
+        rel_rot, rel_off, steps, _ = self._fk
+        q = np.asarray(pose.rotations, dtype=float)
+        frames = rel_rot @ q  # final for roots: R_i Q_i
+        offsets = rel_off + np.einsum("nij,nj->ni", rel_rot, np.asarray(pose.translations,
+                                                                        dtype=float))
+        heads = offsets.copy()  # final for roots: r_i + R_i t_i
+        for kids, pars, free in steps:
+            heads[kids] = heads[pars] + np.einsum("nij,nj->ni", frames[pars], offsets[kids])
+            frames[kids] = frames[pars] @ frames[kids]
+            if free.size:
+                frames[free] = self.rest_frames[free] @ q[free]
+        tails = heads + frames[:, :, 1] * self._fk[3][:, None]
         return PoseState(heads, tails, frames)
 
     def parent_carry(self, i: int, state: PoseState) -> np.ndarray:

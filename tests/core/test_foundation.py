@@ -67,8 +67,13 @@ def test_forward_keeps_lengths_and_offsets() -> None:
     np.testing.assert_allclose(st.heads[3], st.tails[2], atol=1e-12)
 
 
-def test_forward_matches_recursive_definition() -> None:
+@pytest.mark.parametrize("inherit_arm", [True, False])
+def test_forward_matches_recursive_definition(inherit_arm: bool) -> None:
     sk = tree_skeleton()
+    inherit = sk.inherit_rotation.copy()
+    inherit[2] = inherit_arm  # arm.L, which has a child
+    sk = type(sk)(sk.names, sk.parents, sk.rest_heads, sk.rest_tails, sk.rest_frames,
+                  inherit, sk.connected, sk.deform)
     q = random_rotations(sk.n_bones)
     t = RNG.normal(size=(sk.n_bones, 3)) * 0.1
     st = sk.forward(Pose(q, t))
@@ -80,7 +85,8 @@ def test_forward_matches_recursive_definition() -> None:
             np.testing.assert_allclose(st.heads[i], r[i] + R[i] @ t[i], atol=1e-12)
         else:
             carry = st.frames[p] @ R[p].T
-            np.testing.assert_allclose(st.frames[i], carry @ R[i] @ q[i], atol=1e-12)
+            frame = carry @ R[i] @ q[i] if sk.inherit_rotation[i] else R[i] @ q[i]
+            np.testing.assert_allclose(st.frames[i], frame, atol=1e-12)
             expected = st.heads[p] + carry @ (r[i] - r[p] + R[i] @ t[i])
             np.testing.assert_allclose(st.heads[i], expected, atol=1e-12)
 
