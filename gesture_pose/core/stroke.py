@@ -148,10 +148,13 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray
     Returns:
         Distances in pixels, shape ``(m,)``.
     """
-    p = np.asarray(points, dtype=float)[:, None, :]
-    a = np.asarray(polyline, dtype=float)[None, :-1, :]
-    ab = np.diff(np.asarray(polyline, dtype=float), axis=0)[None]
-    denom = np.maximum(np.sum(ab * ab, axis=-1), 1e-300)
-    t = np.clip(np.sum((p - a) * ab, axis=-1) / denom, 0.0, 1.0)
-    closest = a + t[..., None] * ab
-    return np.min(np.linalg.norm(p - closest, axis=-1), axis=1)
+    p = np.asarray(points, dtype=float)
+    v = np.asarray(polyline, dtype=float)
+    ax, ay = v[:-1, 0], v[:-1, 1]
+    bx, by = v[1:, 0] - ax, v[1:, 1] - ay
+    inv_len2 = 1.0 / np.maximum(bx * bx + by * by, 1e-300)
+    px = p[:, 0:1] - ax  # (m, n - 1), x and y kept apart: no reductions over a 2-axis
+    py = p[:, 1:2] - ay
+    t = np.clip((px * bx + py * by) * inv_len2, 0.0, 1.0)
+    dx, dy = px - t * bx, py - t * by
+    return np.sqrt(np.min(dx * dx + dy * dy, axis=1))

@@ -164,3 +164,11 @@ def test_stroke_rejects_bad_points() -> None:
         Stroke(np.array([[1.0, 1.0], [np.nan, 2.0]]))
     with pytest.raises(InputError, match=r"shape \(n, 2\)"):
         Stroke(np.zeros((3, 3)))
+
+
+def test_distance_to_polyline_exact_on_a_square() -> None:
+    from gesture_pose.core.stroke import distance_to_polyline
+
+    square = np.array([[0, 0], [10, 0], [10, 10], [0, 10]], float)
+    pts = np.array([[5, -3], [12, 5], [5, 5], [-4, 13], [10, 10]], float)
+    np.testing.assert_allclose(distance_to_polyline(pts, square), [3, 2, 5, 5, 0], atol=1e-12)
