@@ -16,6 +16,7 @@ import bpy
 MODULES: tuple[str, ...] = (
     "properties",
     "panel",
+    "operators.pose_drawing",
     "operators.pose_stroke",
     "operators.abstraction",
 )

@@ -63,31 +63,43 @@ def parallel_pairs(joint_parent: np.ndarray, joints2d: np.ndarray,
     return np.stack([a, b, c], axis=1)[keep].reshape(-1, 3)
 
 
-def direction_constraints(triples: np.ndarray, rest_joints: np.ndarray,
+def direction_constraints(triples: np.ndarray, rest_joints: np.ndarray, X: np.ndarray,
                           labels: tuple[str, ...] = ()) -> LinearConstraint:
-    """Equal 3D unit directions for each triple (3 rows each).
+    """Equal 3D unit directions for each triple, 2 rows each.
+
+    ``u_ab = (X_b - X_a) / l_ab`` and ``u_bc`` are unit vectors, so their difference has no
+    first-order component along ``n = u_ab + u_bc``; a third row along ``n`` would make the
+    linearized system rank deficient and, at second order, inconsistent. The rows are
+    therefore ``e_k . (u_bc - u_ab) = 0`` for two unit vectors ``e_1, e_2`` orthogonal to
+    ``n`` at the current positions ``X`` (rebuilt every SQP iteration).
 
     Args:
         triples: ``(a, b, c)`` joint triples, shape ``(k, 3)``.
         rest_joints: Rest joints (for the link lengths), shape ``(J, 3)``.
+        X: Current joint positions, shape ``(J, 3)``.
         labels: Joint names for the labels (optional).
 
     Returns:
         Equality rows on the flattened joint positions.
     """
     n_j = len(rest_joints)
-    A = np.zeros((len(triples), 3, n_j, 3))
-    eye = np.eye(3)
+    A = np.zeros((len(triples), 2, n_j, 3))
     names = []
     for i, (a, b, c) in enumerate(triples):
         l1 = np.linalg.norm(rest_joints[b] - rest_joints[a])
         l2 = np.linalg.norm(rest_joints[c] - rest_joints[b])
-        A[i, :, c] += eye / l2
-        A[i, :, b] -= eye / l2 + eye / l1
-        A[i, :, a] += eye / l1
+        n = (X[b] - X[a]) / l1 + (X[c] - X[b]) / l2
+        n = n / max(np.linalg.norm(n), 1e-12)
+        helper = np.eye(3)[int(np.argmin(np.abs(n)))]
+        e1 = np.cross(n, helper)
+        e1 /= np.linalg.norm(e1)
+        basis = np.stack([e1, np.cross(n, e1)])
+        A[i, :, c] += basis / l2
+        A[i, :, b] -= basis / l2 + basis / l1
+        A[i, :, a] += basis / l1
         tag = f"{labels[b]}" if labels else f"joint {b}"
-        names.extend([f"straight at {tag}"] * 3)
-    A = A.reshape(3 * len(triples), 3 * n_j)
+        names.extend([f"straight at {tag}"] * 2)
+    A = A.reshape(2 * len(triples), 3 * n_j)
     zero = np.zeros(len(A))
     return LinearConstraint(A, zero, zero.copy(), tuple(names))
 

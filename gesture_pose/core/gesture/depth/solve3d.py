@@ -45,6 +45,8 @@ class DepthOptions:
         free_ratio: Relative foreshortening below which a bone is free (paper: 0.6).
         parallel_angle: Drawn angle under which consecutive links get one 3D direction,
             radians (paper: 10 degrees).
+        parallel_ratio_gap: Largest difference of the two links' drawn foreshortening for
+            the same-direction rule (ours: links of one straight limb shorten alike).
         spline_weight: Weight of the soft limb-spline term.
         use_contacts: Keep drawn contacts as depth constraints.
         symmetry_angle: Largest mirrored-bone angle for the symmetry post-process, radians;
@@ -59,6 +61,7 @@ class DepthOptions:
     sigma_f: float = 0.2
     free_ratio: float = 0.6
     parallel_angle: float = float(np.radians(10.0))
+    parallel_ratio_gap: float = 0.1
     spline_weight: float = 1.0
     use_contacts: bool = True
     symmetry_angle: float = float(np.radians(10.0))
@@ -126,6 +129,16 @@ class _Setup:
     constraints: list
     order: list
     kappa: float
+    triples: np.ndarray
+    rest_joints: np.ndarray
+    joint_names: tuple[str, ...]
+
+    def all_constraints(self, X: np.ndarray) -> list[LinearConstraint]:
+        """The fixed constraints plus the same-direction rows built at positions ``X``."""
+        if not len(self.triples):
+            return list(self.constraints)
+        return [regularity.direction_constraints(self.triples, self.rest_joints, X,
+                                                 self.joint_names), *self.constraints]
 
 
 def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pose,
@@ -156,9 +169,7 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
     joint_ratio = np.ones(n_j)
     joint_ratio[b] = ratios
     triples = regularity.parallel_pairs(s.joint_parent, embedding.joints2d,
-                                        opts.parallel_angle, joint_ratio, opts.sigma_f)
-    if len(triples):
-        constraints.append(regularity.direction_constraints(triples, X_rest, joint_names))
+                                        opts.parallel_angle, joint_ratio, opts.parallel_ratio_gap)
     contacts = (regularity.contact_pairs(embedding) if opts.use_contacts
                 else np.zeros((0, 2), int))
     if len(contacts):
@@ -173,7 +184,8 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
         constraints.append(LinearConstraint(rows.matrix, rows.lower + slack, rows.upper,
                                             rows.labels))
     kappa = 1.0 / max(float(np.sum(lengths**2)), 1e-12)
-    setup = _Setup(jmap, frame, (a, b), lengths, ratios, terms, constraints, order, kappa)
+    setup = _Setup(jmap, frame, (a, b), lengths, ratios, terms, constraints, order, kappa,
+                   triples, X_rest, joint_names)
     return setup, X_rest, contacts, names
 
 
@@ -325,7 +337,8 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
         G = twist.position_jacobian(jm, X, state)
         dof = _dof_rows(skeleton, jm, current, state.frames[jm.bones], lock_rotation,
                         ik_limits, pinned)
-        problem = build_qp(setup.terms, setup.constraints, dof, X.ravel(), G,
+        constraints = setup.all_constraints(X)
+        problem = build_qp(setup.terms, constraints, dof, X.ravel(), G,
                            alpha=opts.alpha, kappa=setup.kappa, soften=soften,
                            rho=opts.soft_penalty)
         try:
@@ -336,7 +349,7 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
             soften = True
             warnings.append("The drawing's depth cues contradict each other; the "
                             "constraints were softened.")
-            problem = build_qp(setup.terms, setup.constraints, dof, X.ravel(), G,
+            problem = build_qp(setup.terms, constraints, dof, X.ravel(), G,
                                alpha=opts.alpha, kappa=setup.kappa, soften=True,
                                rho=opts.soft_penalty)
             sol = solve_qp(problem)
@@ -356,15 +369,24 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
         t3 = time.perf_counter()
         pairs = symmetry.mirror_pairs(skeleton.names, jm.bones)
         if len(pairs):
+            X, _ = twist.joint_positions(skeleton, jm, current)
+            tol = 1e-4 * mean_len
+            broken = ordering.violations(setup.order, setup.frame.depth(X)) > tol
+
+            def keeps_order(p: Pose) -> bool:
+                Y, _ = twist.joint_positions(skeleton, jm, p)
+                now = ordering.violations(setup.order, setup.frame.depth(Y)) > tol
+                return not np.any(now & ~broken)
+
             current, symmetric = symmetry.symmetrize(skeleton, current, pairs,
-                                                     opts.symmetry_angle)
+                                                     opts.symmetry_angle, keeps_order)
         timings["symmetry"] = time.perf_counter() - t3
     X, _ = twist.joint_positions(skeleton, jm, current)
     depths = setup.frame.depth(X)
     ok = ordering.violations(setup.order, depths) <= 1e-4 * mean_len
     if not np.all(ok):
         warnings.append(f"{int(np.sum(~ok))} depth-order constraint(s) are not met.")
-    equalities = tuple(lab for c in setup.constraints for lab, lo, hi in
+    equalities = tuple(lab for c in setup.all_constraints(X) for lab, lo, hi in
                        zip(c.labels, c.lower, c.upper, strict=True) if lo == hi)
     energy = {t.name: t.value(X) for t in setup.terms}
     timings["total"] = time.perf_counter() - t0

@@ -15,6 +15,8 @@ about the bones are kept.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from ...rotations import normalize
@@ -54,7 +56,8 @@ def _limb_roots(skeleton: Skeleton, pairs: np.ndarray) -> list[np.ndarray]:
 
 
 def symmetrize(skeleton: Skeleton, pose: Pose, pairs: np.ndarray,
-               max_angle: float = np.radians(10.0)) -> tuple[Pose, list[str]]:
+               max_angle: float = np.radians(10.0),
+               accept: Callable[[Pose], bool] | None = None) -> tuple[Pose, list[str]]:
     """Make nearly mirror-symmetric left/right limbs exactly symmetric.
 
     Args:
@@ -62,6 +65,8 @@ def symmetrize(skeleton: Skeleton, pose: Pose, pairs: np.ndarray,
         pose: The solved pose.
         pairs: Left/right bone pairs (full indices), shape ``(k, 2)``.
         max_angle: Largest angle between a bone and its mirrored partner, radians.
+        accept: Called with the pose after each limb pair is made symmetric; the change is
+            kept only when it returns True (e.g. no depth-order constraint broken).
 
     Returns:
         ``(pose, names)``: the new pose and the names of the left bones made symmetric.
@@ -84,11 +89,15 @@ def symmetrize(skeleton: Skeleton, pose: Pose, pairs: np.ndarray,
         if angle.max() > max_angle:
             continue
         target = normalize(dl + dr)
+        before = pose
         for (bl, br), d in zip(limb, target, strict=True):
             for bone, direction in ((bl, d), (br, _reflect(d, normal))):
                 state = skeleton.forward(pose)
                 rot = skeleton.aim_local(int(bone), direction, state, pose.rotations[bone])
                 pose = pose.with_rotations(np.array([bone]), rot[None])
+        if accept is not None and not accept(pose):
+            pose = before
+            continue
         done.extend(skeleton.names[b] for b in limb[:, 0])
     return pose, done
 

@@ -1,0 +1,272 @@
+"""The "Pose" and "Flip Depth" operators: pose a character from a gesture drawing.
+
+Pose reads the armature, its skinned meshes, the view and the drawing once, fits the 2D
+skeletal embedding (:func:`gesture_pose.core.gesture.embedding.fit_drawing`, Gesture3D
+Sections 4-6), lifts it to 3D (:func:`gesture_pose.core.gesture.depth.solve_pose3d`,
+Section 7), then writes and keys the changed solving bones at the current frame. Every
+Pose starts from the bind pose of the solving bones, so posing again after editing the
+drawing does not drift; bones outside the solving skeleton keep their local rotations.
+
+Flip Depth mirrors the depth of the selected limb about the view plane through its root
+joint, for the foreshortened limbs the drawing leaves ambiguous.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import bpy
+import numpy as np
+
+from ...core.camera import Camera
+from ...core.exceptions import InputError
+from ...core.gesture.depth import DepthOptions, Pose3DResult, flip_depth, solve_pose3d
+from ...core.gesture.embedding import fit_drawing
+from ...core.gesture.types import Embedding2D
+from ...core.skeleton import Pose
+from ..operator_utils import (
+    GesturePoseOperatorMixin,
+    report_result,
+    resolve_armature,
+    resolve_sketch,
+)
+from ..read_armature import ArmatureData, read_armature
+from ..read_mesh import read_skinned_meshes
+from ..read_strokes import read_sketch, strokes_to_2d, write_strokes
+from ..read_view import camera_from_context
+from ..write_pose import apply_pose
+
+#: Grease Pencil layer the fitted skeleton is drawn into (never read back as drawing).
+FIT_LAYER = "Gesture Fit"
+
+
+@dataclass(frozen=True)
+class PoseDrawingReport:
+    """What one Pose did.
+
+    Attributes:
+        embedding: The 2D skeletal embedding of the drawing.
+        result: The 3D solve.
+        written: Names of the bones written (and keyed).
+        seconds: Wall time of the whole Pose, seconds.
+        timings: Seconds per stage (``"read"``, ``"fit"``, ``"solve3d"``, ``"write"``).
+    """
+
+    embedding: Embedding2D
+    result: Pose3DResult
+    written: tuple[str, ...]
+    seconds: float
+    timings: dict
+
+
+def _bind_pose(data: ArmatureData, bones: np.ndarray | None = None) -> Pose:
+    """The current pose with the given bones (default: every deforming bone) at rest."""
+    idx = np.flatnonzero(data.skeleton.deform) if bones is None else np.asarray(bones, int)
+    return data.pose.with_rotations(idx, np.tile(np.eye(3), (len(idx), 1, 1)))
+
+
+def _fit_polylines(embedding: Embedding2D, camera: Camera, depth: float) -> list[np.ndarray]:
+    """The fitted skeleton as world polylines at ``depth``: one 2-point line per bone."""
+    heads, tails = embedding.bone_points()
+    pts = camera.unproject_at_depth(np.concatenate([heads, tails]), depth)
+    m = len(heads)
+    return [np.stack([pts[k], pts[m + k]]) for k in range(m)]
+
+
+def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
+                      camera: Camera, *, frame: int | None = None, insert_keys: bool = True,
+                      show_fit: bool = True, options: DepthOptions | None = None,
+                      progress: Callable[[float], None] | None = None) -> PoseDrawingReport:
+    """Pose an armature from a gesture drawing and key it (the whole "Pose" action).
+
+    Args:
+        arm_obj: The character's armature object (skinned meshes are read from it).
+        sketch_obj: Grease Pencil (or curve) object holding the drawing's contours.
+        camera: The view the drawing was made in.
+        frame: Scene frame whose drawing is read and keyed (the current frame when None).
+        insert_keys: Key the changed bones in their rotation modes.
+        show_fit: Draw the fitted skeleton into the sketch's "Gesture Fit" layer.
+        options: 3D solve parameters (the paper's defaults when None).
+        progress: Called with the fraction done, in ``[0, 1]``.
+
+    Returns:
+        The embedding, the 3D result and what was written.
+
+    Raises:
+        GesturePoseError: Bad input or a failed solve; nothing is written then.
+    """
+    tick = progress or (lambda _f: None)
+    t0 = time.perf_counter()
+    scene = bpy.context.scene
+    frame = scene.frame_current if frame is None else int(frame)
+    data = read_armature(arm_obj)
+    strokes = [s for s in read_sketch(sketch_obj, frame)
+               if not s.layer_name.startswith(FIT_LAYER)]
+    if not strokes:
+        raise InputError(f"'{sketch_obj.name}' has no strokes at frame {frame}: draw the "
+                         "character's contours over it first.")
+    strokes_2d = strokes_to_2d(strokes, camera)
+    bind = _bind_pose(data)
+    meshes = read_skinned_meshes(arm_obj, data.skeleton, state=data.skeleton.forward(bind))
+    timings = {"read": time.perf_counter() - t0}
+    tick(0.15)
+    t1 = time.perf_counter()
+    embedding = fit_drawing(strokes_2d, data.skeleton, bind, meshes.rest_vertices, camera,
+                            meshes.weights, override=data.gesture_override)
+    timings["fit"] = time.perf_counter() - t1
+    tick(0.7)
+    t2 = time.perf_counter()
+    result = solve_pose3d(data.skeleton, embedding, camera, data.pose,
+                          lock_rotation=data.lock_rotation, ik_limits=data.ik_limits,
+                          pinned=data.pinned, options=options)
+    timings["solve3d"] = time.perf_counter() - t2
+    tick(0.9)
+    t3 = time.perf_counter()
+    written = apply_pose(arm_obj, data, result.pose, bones=[int(b) for b in result.bones],
+                         insert_keys=insert_keys, frame=frame)
+    if show_fit and sketch_obj.type == "GREASEPENCIL":
+        depth = float(np.mean(camera.depth(result.joints3d)))
+        write_strokes(sketch_obj, FIT_LAYER, _fit_polylines(embedding, camera, depth),
+                      frame=frame, color=(0.1, 0.6, 1.0, 1.0))
+    elif sketch_obj.type == "GREASEPENCIL" and sketch_obj.data.layers.get(FIT_LAYER):
+        sketch_obj.data.layers.remove(sketch_obj.data.layers[FIT_LAYER])
+    timings["write"] = time.perf_counter() - t3
+    tick(1.0)
+    return PoseDrawingReport(embedding, result, tuple(written), time.perf_counter() - t0,
+                             timings)
+
+
+def flip_limb_depth(arm_obj: bpy.types.Object, bone_name: str, camera: Camera, *,
+                    frame: int | None = None, insert_keys: bool = True) -> list[str]:
+    """Mirror the depth of the limb below ``bone_name`` and key it ("Flip Depth").
+
+    Args:
+        arm_obj: The armature object.
+        bone_name: First bone of the limb; the limb is that bone and every bone below it.
+        camera: The view (the mirror plane is the view plane through the bone's head).
+        frame: Frame to key (the current frame when None).
+        insert_keys: Key the changed bones.
+
+    Returns:
+        Names of the bones written.
+
+    Raises:
+        InputError: No such bone.
+    """
+    data = read_armature(arm_obj)
+    root = data.skeleton.index(bone_name)
+    chain = data.skeleton.descendants(root)
+    state = data.skeleton.forward(data.pose)
+    forward = camera.view_directions(state.heads[root][None])[0]
+    new_pose = flip_depth(data.skeleton, data.pose, chain, forward)
+    return apply_pose(arm_obj, data, new_pose, bones=[int(b) for b in chain],
+                      insert_keys=insert_keys, frame=frame)
+
+
+def _progress(context) -> tuple[Callable[[float], None], Callable[[], None]]:
+    """Progress callbacks on the window manager's cursor indicator (no-ops headless)."""
+    wm = getattr(context, "window_manager", None)
+    if wm is None or getattr(context, "window", None) is None:
+        return (lambda _f: None), (lambda: None)
+    wm.progress_begin(0.0, 1.0)
+    return wm.progress_update, wm.progress_end
+
+
+class GESTUREPOSE_OT_pose_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
+    """Pose the character from the gesture drawing over it and key the pose."""
+
+    bl_idname = "gesture_pose.pose_drawing"
+    bl_label = "Pose"
+    bl_description = ("Fit the character's skeleton to the drawing, recover the 3D pose it "
+                      "shows and key the changed bones at the current frame")
+    bl_options = {"REGISTER", "UNDO"}
+
+    armature: bpy.props.StringProperty(name="Armature", description="Armature to pose "
+                                       "(empty: the one picked in the panel or selected)")
+    sketch: bpy.props.StringProperty(name="Sketch", description="Grease Pencil object "
+                                     "holding the drawing (empty: automatic)")
+    insert_keys: bpy.props.BoolProperty(name="Insert Keys", default=True,
+                                        description="Key the changed bones")
+    show_fit: bpy.props.BoolProperty(name="Show Fit", default=True,
+                                     description=f"Keep the fitted skeleton in the sketch's "
+                                     f"'{FIT_LAYER}' layer")
+
+    def run(self, context: bpy.types.Context) -> set[str]:
+        """Read, fit, lift, then write and key (see the module docstring)."""
+        arm = resolve_armature(context, self.armature)
+        sketch = resolve_sketch(context, self.sketch, arm)
+        camera = camera_from_context(context)
+        update, end = _progress(context)
+        try:
+            rep = pose_from_drawing(arm, sketch, camera, insert_keys=self.insert_keys,
+                                    show_fit=self.show_fit, progress=update)
+        finally:
+            end()
+        for warning in (*rep.embedding.warnings, *rep.result.warnings):
+            self.report({"WARNING"}, warning)
+        report_result(self, f"Posed {len(rep.written)} bones in {rep.seconds:.2f} s "
+                            f"(fit {rep.timings['fit']:.2f} s, 3D {rep.timings['solve3d']:.2f}"
+                            f" s); drawing coverage {100 * rep.embedding.coverage:.0f}%")
+        return {"FINISHED"}
+
+
+class GESTUREPOSE_OT_flip_depth(GesturePoseOperatorMixin, bpy.types.Operator):
+    """Mirror the selected limb's depth about the view plane through its root joint."""
+
+    bl_idname = "gesture_pose.flip_depth"
+    bl_label = "Flip Depth"
+    bl_description = ("Mirror the depth of the active bone and the bones below it (towards "
+                      "or away from the view), for limbs the drawing leaves ambiguous")
+    bl_options = {"REGISTER", "UNDO"}
+
+    armature: bpy.props.StringProperty(name="Armature", description="Armature (empty: the "
+                                       "one picked in the panel or selected)")
+    bone: bpy.props.StringProperty(name="Bone", description="First bone of the limb "
+                                   "(empty: the active bone)")
+    insert_keys: bpy.props.BoolProperty(name="Insert Keys", default=True)
+
+    def run(self, context: bpy.types.Context) -> set[str]:
+        """Flip the limb and key it."""
+        arm = resolve_armature(context, self.armature)
+        name = self.bone
+        if not name:
+            active = getattr(context, "active_pose_bone", None) or arm.data.bones.active
+            if active is None:
+                raise InputError("No bone to flip: select the first bone of the limb in Pose "
+                                 "Mode, or give its name.")
+            name = active.name
+        written = flip_limb_depth(arm, name, camera_from_context(context),
+                                  insert_keys=self.insert_keys)
+        if not written:
+            self.report({"WARNING"}, f"Nothing to do: the limb below '{name}' lies in the view "
+                                     "plane, flipping its depth changes nothing.")
+            return {"CANCELLED"}
+        report_result(self, f"Flipped the depth of {len(written)} bones below '{name}'")
+        return {"FINISHED"}
+
+
+class VIEW3D_PT_gesture_pose_drawing(bpy.types.Panel):
+    """Gesture drawings: the main Pose button and Flip Depth."""
+
+    bl_idname = "VIEW3D_PT_gesture_pose_drawing"
+    bl_label = "Pose from Drawing"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Gesture Pose"
+    bl_parent_id = "VIEW3D_PT_gesture_pose"
+    bl_order = 0
+    bl_options = {"HIDE_HEADER"}
+
+    def draw(self, context: bpy.types.Context) -> None:
+        """The large Pose button, then Flip Depth."""
+        col = self.layout.column()
+        big = col.row()
+        big.scale_y = 2.0
+        big.operator(GESTUREPOSE_OT_pose_drawing.bl_idname, text="Pose", icon="ARMATURE_DATA")
+        col.operator(GESTUREPOSE_OT_flip_depth.bl_idname, icon="MOD_MIRROR")
+
+
+CLASSES = (GESTUREPOSE_OT_pose_drawing, GESTUREPOSE_OT_flip_depth,
+           VIEW3D_PT_gesture_pose_drawing)
