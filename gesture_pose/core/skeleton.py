@@ -157,6 +157,16 @@ class Skeleton:
         return rel_rot, rel_off, tuple(steps), lengths
 
     @property
+    def rest_relative(self) -> tuple[np.ndarray, np.ndarray]:
+        """Rest rotation and head offset of each bone in its parent's rest frame.
+
+        Returns:
+            ``(R_p^T R_i (n, 3, 3), R_p^T (r_i - r_p) (n, 3))``; ``R_i`` and ``r_i`` for
+            roots. Read-only views: do not modify.
+        """
+        return self._fk[0], self._fk[1]
+
+    @property
     def n_bones(self) -> int:
         """Number of bones."""
         return len(self.names)

@@ -2,14 +2,15 @@
 
 Walks the chain from its first joint: Eq. 2 picks each joint's feature point, Eq. 4 places
 the joint, the bone's local rotation is computed directly from the new direction with its
-twist kept, the bone's subtree follows rigidly, and Eq. 3 renormalizes the arc length. At
-a branch the child whose rotation has the smallest magnitude continues the chain.
+twist kept (everything below follows through forward kinematics), and Eq. 3 renormalizes
+the arc length. At a branch the child whose rotation has the smallest magnitude continues
+the chain.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -57,22 +58,6 @@ def rotation_between3(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
     ]), angle
 
 
-def _proper_rotation(m: np.ndarray) -> np.ndarray:
-    """Gram-Schmidt projection of a nearly orthonormal ``(3, 3)`` matrix onto SO(3).
-
-    The rigid motion of a bone's subtree is built from frames that carry rounding error;
-    without this projection that error would triple at every joint of a long chain.
-    """
-    (a, d, g), (b, e, h) = m[:, 0].tolist(), m[:, 1].tolist()
-    n = math.sqrt(a * a + d * d + g * g)
-    a, d, g = a / n, d / n, g / n
-    dot = a * b + d * e + g * h
-    b, e, h = b - dot * a, e - dot * d, h - dot * g
-    n = math.sqrt(b * b + e * e + h * h)
-    b, e, h = b / n, e / n, h / n
-    return np.array([[a, b, d * h - g * e], [d, e, g * b - a * h], [g, h, a * e - d * b]])
-
-
 def _unit(v: np.ndarray) -> np.ndarray:
     x, y, z = v.tolist()
     n = math.sqrt(x * x + y * y + z * z)
@@ -87,44 +72,66 @@ def twist_about_y(q: np.ndarray) -> np.ndarray:
 
 @dataclass
 class ChainState:
-    """Mutable working copy of the pose while one stroke is applied.
+    """Working copy of the pose while one stroke is applied.
+
+    The walk down a chain only ever needs the bone it is posing and that bone's children,
+    and their parents are final by then; so a bone's world state is recomputed from its
+    parent by one forward-kinematics step when it is reached (:meth:`refresh`), instead of
+    rotating whole subtrees after every joint. Bones off the walked chain may hold stale
+    world data; the local rotations are always current.
 
     Attributes:
+        skeleton: The skeleton.
         rotations: Local rotations, shape ``(n, 3, 3)``.
+        translations: Local translations, shape ``(n, 3)``.
         heads: World heads, shape ``(n, 3)``.
         tails: World tails, shape ``(n, 3)``.
         frames: World frames, shape ``(n, 3, 3)``.
-        subtrees: Cache of each bone's subtree indices.
     """
 
+    skeleton: Skeleton
     rotations: np.ndarray
+    translations: np.ndarray
     heads: np.ndarray
     tails: np.ndarray
     frames: np.ndarray
-    subtrees: dict[int, np.ndarray] = field(default_factory=dict)
 
     @classmethod
-    def from_state(cls, rotations: np.ndarray, state: PoseState) -> ChainState:
+    def from_state(cls, skeleton: Skeleton, rotations: np.ndarray, translations: np.ndarray,
+                   state: PoseState) -> ChainState:
         """Copy a pose and its forward kinematics."""
-        return cls(rotations.copy(), state.heads.copy(), state.tails.copy(), state.frames.copy())
+        return cls(skeleton, rotations.copy(), translations, state.heads.copy(),
+                   state.tails.copy(), state.frames.copy())
 
-    def subtree(self, skeleton: Skeleton, bone: int) -> np.ndarray:
-        """Bone ``bone`` and its descendants (cached)."""
-        found = self.subtrees.get(bone)
-        if found is None:
-            found = self.subtrees[bone] = skeleton.descendants(bone)
-        return found
+    def copy(self) -> ChainState:
+        """An independent copy (for dry runs)."""
+        return ChainState(self.skeleton, self.rotations.copy(), self.translations,
+                          self.heads.copy(), self.tails.copy(), self.frames.copy())
 
-    def rotate_bone(self, skeleton: Skeleton, bone: int, new_local: np.ndarray) -> None:
-        """Set a bone's local rotation; its subtree turns rigidly about its head."""
-        carry = self.frames[bone] @ self.rotations[bone].T
-        world = _proper_rotation(carry @ new_local @ self.frames[bone].T)
-        idx = self.subtree(skeleton, bone)
-        pivot = self.heads[bone]
-        self.frames[idx] = world @ self.frames[idx]
-        self.heads[idx] = pivot + (self.heads[idx] - pivot) @ world.T
-        self.tails[idx] = pivot + (self.tails[idx] - pivot) @ world.T
-        self.rotations[bone] = new_local
+    def carry(self, bone: int) -> np.ndarray:
+        """``C`` with ``F = C Q`` for ``bone`` (its parent's frame must be current)."""
+        sk = self.skeleton
+        rel_rot = sk.rest_relative[0][bone]
+        p = sk.parents[bone]
+        if p < 0 or not sk.inherit_rotation[bone]:
+            return sk.rest_frames[bone] if p >= 0 else rel_rot
+        return self.frames[p] @ rel_rot
+
+    def refresh(self, bone: int) -> None:
+        """Recompute ``bone``'s world head, tail and frame from its (current) parent."""
+        sk = self.skeleton
+        rel_rot, rel_off = sk.rest_relative
+        off = rel_off[bone] + rel_rot[bone] @ self.translations[bone]
+        p = sk.parents[bone]
+        self.heads[bone] = off if p < 0 else self.heads[p] + self.frames[p] @ off
+        self.set_rotation(bone, self.rotations[bone])
+
+    def set_rotation(self, bone: int, local: np.ndarray) -> None:
+        """Set a bone's local rotation and its world frame and tail (head unchanged)."""
+        self.rotations[bone] = local
+        frame = self.carry(bone) @ local
+        self.frames[bone] = frame
+        self.tails[bone] = self.heads[bone] + frame[:, 1] * self.skeleton._fk[3][bone]
 
 
 def aimed_rotation(cs: ChainState, bone: int, seg_end: np.ndarray,
@@ -147,7 +154,7 @@ def aimed_rotation(cs: ChainState, bone: int, seg_end: np.ndarray,
     """
     head = cs.heads[bone]
     frame, q = cs.frames[bone], cs.rotations[bone]
-    carry = frame @ q.T
+    carry = cs.carry(bone)
     cur_dir = _unit(seg_end - head)
     new_dir = _unit(new_end - head)
     angle = math.acos(max(-1.0, min(1.0, float(cur_dir @ new_dir))))
@@ -308,12 +315,16 @@ def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: Cha
     s_prev, landed_prev = 0.0, sampled.at(0.0)
     bones, targets, landed, skipped, angles = [], [], [], [], []
     while candidates.size:
+        for c in candidates.tolist():
+            cs.refresh(c)  # their parent is final now
         bone = _choose(skeleton, walker, candidates, s_prev, landed_prev)
         pos = len(bones)
         if fixed is not None:
             kids = np.asarray(fixed[pos + 1:pos + 2], dtype=int)
         else:
             kids = next_candidates(skeleton, bone, spec.direction_path)
+        for k in kids.tolist():
+            cs.refresh(k)  # where the segment ends before the bone turns
         ends = _segment_ends(skeleton, cs, bone, kids)
         results = [walker.try_bone(bone, end, int(m[0]) if m.size else -1, s_prev, landed_prev)
                    for end, m in ends]
@@ -329,7 +340,7 @@ def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: Cha
         if rot is None:
             skipped.append(bone)
         else:
-            cs.rotate_bone(skeleton, bone, rot)
+            cs.set_rotation(bone, rot)
         new_end = cs.heads[bone] + cs.frames[bone] @ offset_local
         land = view.project(new_end)
         if options.tracking is Tracking.POSITION and options.feature_extraction:

@@ -105,8 +105,7 @@ def _run_part(skeleton: Skeleton, view: ViewOps, cs: ChainState, piece: Stroke, 
     if shape and bones is None:
         # The chain must be known before the stroke is scaled to its length: find it by
         # a dry run on a copy, which chooses branches exactly as the real pass would.
-        trial = ChainState(cs.rotations.copy(), cs.heads.copy(), cs.tails.copy(),
-                           cs.frames.copy(), cs.subtrees)
+        trial = cs.copy()
         dry = _prepare(piece, start_px, None)
         sampled = SampledStroke.from_stroke(dry, options.sample_step)
         bones = pose_part(skeleton, view, sampled, trial, spec, options).bones
@@ -145,7 +144,7 @@ def pose_from_stroke(skeleton: Skeleton, pose: Pose, camera: Camera, stroke: Str
     state = skeleton.forward(pose)
     view = ViewOps.from_camera(camera)
     plan = plan_chain(skeleton, state, camera, stroke.points[0], options)
-    cs = ChainState.from_state(pose.rotations, state)
+    cs = ChainState.from_state(skeleton, pose.rotations, pose.translations, state)
     pieces = _pieces(stroke, plan, view, cs)
     t1 = time.perf_counter()
     outcomes = [_run_part(skeleton, view, cs, piece, part, plan, options)
