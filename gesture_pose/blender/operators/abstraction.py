@@ -61,6 +61,8 @@ ASSIGNMENT_ITEMS = [
 #: Mesh vertices farther than this fraction of the character size from LBS mean a rig that
 #: is not plain linear blend skinning.
 LBS_TOLERANCE = 1e-3
+#: Bones whose rotation-matrix entries (or scale) change less than this are not written.
+WRITE_TOLERANCE = 1e-4
 
 
 class _SolverProps:
@@ -167,9 +169,10 @@ def write_result(op, arm_obj, job: RigJob, result: SolveResult, frame: int) -> l
     space = job.space
     written = apply_pose(arm_obj, job.armature, result.pose.to_pose(),
                          bones=list(space.rotation_bones), insert_keys=op.insert_keys,
-                         frame=frame, location_bones=list(space.translation_bones))
+                         frame=frame, location_bones=list(space.translation_bones),
+                         tol=WRITE_TOLERANCE)
     for b in space.scale_bones:
-        if abs(result.pose.scales[b] - job.start.scales[b]) > 1e-7:
+        if abs(result.pose.scales[b] - job.start.scales[b]) > WRITE_TOLERANCE:
             pb = arm_obj.pose.bones[job.armature.names[b]]
             pb.scale = (float(result.pose.scales[b]),) * 3
             if op.insert_keys:

@@ -76,6 +76,16 @@ def _closest_on_polyline(queries: np.ndarray, poly: np.ndarray) -> tuple[np.ndar
     return seg, t[np.arange(len(queries)), seg]
 
 
+def polyline_at(stroke: Stroke, s: np.ndarray) -> np.ndarray:
+    """Points of the drawn polyline (linear between samples) at arc lengths ``s``, ``(q, 2)``.
+
+    The drawn samples are used as they are (no spline), so sharp corners stay sharp.
+    """
+    arc = stroke.arclength
+    s = np.clip(np.asarray(s, dtype=float), 0.0, arc[-1])
+    return np.stack([np.interp(s, arc, stroke.points[:, d]) for d in range(2)], axis=1)
+
+
 def _symmetric_distance(curve: np.ndarray, stroke_pts: np.ndarray) -> float:
     """Mean closest-point distance from each polyline to the other, pixels."""
     total = 0.0
@@ -110,7 +120,7 @@ def assign_strokes(curves_2d: list[np.ndarray], strokes: list[Stroke],
         raise InputError(f"Unknown stroke assignment '{mode}': use ORDER or PROXIMITY.")
     cost = np.empty((len(curves_2d), len(strokes)))
     for j, stroke in enumerate(strokes):
-        pts = stroke.evaluate(np.linspace(0.0, stroke.length, 32))
+        pts = polyline_at(stroke, np.linspace(0.0, stroke.length, 32))
         for i, curve in enumerate(curves_2d):
             cost[i, j] = _symmetric_distance(curve, pts)
     rows, cols = linear_sum_assignment(cost)
@@ -129,7 +139,7 @@ def in_order_rows(curve: np.ndarray, stroke: Stroke) -> tuple[np.ndarray, np.nda
     """
     s = polyline_arclength(curve)
     u = s / max(s[-1], 1e-12)
-    return np.arange(len(curve)), stroke.evaluate(u * stroke.length)
+    return np.arange(len(curve)), polyline_at(stroke, u * stroke.length)
 
 
 def closest_rows(curve: np.ndarray, stroke: Stroke, step: float = 2.0):
@@ -144,7 +154,7 @@ def closest_rows(curve: np.ndarray, stroke: Stroke, step: float = 2.0):
         ``(rows, cols, vals, targets)`` of the local blend (rows of curve-to-stroke pairs
         first, then stroke-to-curve pairs) and the targets ``(q, 2)``.
     """
-    poly = stroke.resample(step)
+    poly = polyline_at(stroke, stroke.sample_params(step))
     m = len(curve)
     seg, t = _closest_on_polyline(curve, poly)
     fwd_targets = poly[seg] + t[:, None] * (poly[seg + 1] - poly[seg])

@@ -73,7 +73,9 @@ def resampling_matrix(points: np.ndarray, layout: CurveLayout,
     """Equal arc-length resampling of every curve as a sparse blend of its raw points.
 
     The budget is shared among curves in proportion to their lengths (at least
-    :data:`MIN_CURVE_POINTS` each).
+    :data:`MIN_CURVE_POINTS` each). When the raw points are fewer than the budget they are
+    all kept as well (merged in arc-length order), so the resampled polyline keeps every
+    corner and its arc length equals the raw one (in-order correspondences stay exact).
 
     Args:
         points: Raw points at the current pose, shape ``(m_raw, 3)``.
@@ -100,6 +102,10 @@ def resampling_matrix(points: np.ndarray, layout: CurveLayout,
         sl = layout.curve(i)
         s = polyline_arclength(pts[sl])
         u = np.linspace(0.0, s[-1], count)
+        if layout.n_points <= budget:
+            u = np.unique(np.concatenate([u, s]))
+            u = u[np.concatenate([[True], np.diff(u) > 1e-9 * s[-1]])]
+            count = len(u)
         seg = np.clip(np.searchsorted(s, u, side="right") - 1, 0, len(s) - 2)
         frac = np.clip((u - s[seg]) / np.maximum(s[seg + 1] - s[seg], 1e-15), 0.0, 1.0)
         r = np.arange(start, start + count)
@@ -107,6 +113,7 @@ def resampling_matrix(points: np.ndarray, layout: CurveLayout,
         cols += [sl.start + seg, sl.start + seg + 1]
         vals += [1.0 - frac, frac]
         start += count
+        counts[i] = count
     mat = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                             shape=(start, layout.n_points))
     return mat, CurveLayout(layout.names, np.concatenate([[0], np.cumsum(counts)]))

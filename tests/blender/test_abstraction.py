@@ -1,0 +1,160 @@
+"""Headless tests of Pose from Abstraction and Draw-over on the sample humanoid."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from gesture_pose.blender.read_view import camera_from_object  # noqa: E402
+from gesture_pose.blender.write_pose import keyed_frames  # noqa: E402
+from sample_scenes import abstraction_builders as ab  # noqa: E402
+from sample_scenes import builders  # noqa: E402
+
+pytestmark = pytest.mark.blender
+
+
+def _bone_dirs(arm) -> dict[str, np.ndarray]:
+    bpy.context.view_layer.update()
+    out = {}
+    for pb in arm.pose.bones:
+        d = np.array(arm.matrix_world @ pb.tail) - np.array(arm.matrix_world @ pb.head)
+        out[pb.name] = d / np.linalg.norm(d)
+    return out
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
+
+
+def _mean_px_distance(polylines, strokes) -> float:
+    """Mean distance (pixels) from the abstraction's points to the nearest stroke segment."""
+    cam = camera_from_object(bpy.context.scene.camera, bpy.context.scene)
+    dense = np.concatenate([np.linspace(s[:-1], s[1:], 20).reshape(-1, 3) for s in strokes])
+    tgt = cam.project(dense)
+    pts = cam.project(np.concatenate(polylines))
+    d = np.linalg.norm(pts[:, None, :] - tgt[None], axis=2).min(axis=1)
+    return float(d.mean())
+
+
+@pytest.fixture
+def humanoid(registered):
+    arm, mesh = builders.build_humanoid()
+    stick, outline = ab.add_abstractions(arm, mesh)
+    builders.add_camera(arm, resolution=(960, 960), margin=1.5)
+    return arm, mesh, stick, outline
+
+
+def _run(op, arm, **kwargs):
+    with bpy.context.temp_override(active_object=arm, object=arm, selected_objects=[arm]):
+        return op(**kwargs)
+
+
+def _image_angle(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle between two world directions as seen by the scene camera, degrees."""
+    cam = camera_from_object(bpy.context.scene.camera, bpy.context.scene)
+    centre = np.array([0.0, 0.0, 1.0])
+    da, db = (cam.project(np.stack([centre, centre + 0.1 * v]))[1] - cam.project(
+        centre[None])[0] for v in (a, b))
+    cos = da @ db / np.linalg.norm(da) / np.linalg.norm(db)
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+@pytest.mark.parametrize("abstraction", ["Stick Figure", "Outline"])
+def test_redraw_posing_recovers_known_pose(humanoid, abstraction: str) -> None:
+    arm, _, stick, outline = humanoid
+    obj = stick if abstraction == "Stick Figure" else outline
+    builders.pose_humanoid(arm, "raise_left_arm")
+    want = _bone_dirs(arm)
+    rng = np.random.default_rng(0)
+    strokes = [p + rng.normal(scale=0.002, size=p.shape) * [1, 0, 1]
+               for p in ab.evaluated_polylines(obj)]
+    builders.pose_humanoid(arm, "rest")
+    builders.add_grease_pencil("Sketch", strokes)
+    before = _mean_px_distance(ab.evaluated_polylines(obj), strokes)
+    result = _run(bpy.ops.gesture_pose.pose_abstraction, arm, sketch="Sketch",
+                  abstraction=abstraction)
+    assert result == {"FINISHED"}
+    got = _bone_dirs(arm)
+    after = _mean_px_distance(ab.evaluated_polylines(obj), strokes)
+    assert before > 10.0 and after < 2.0
+    for name in ("upper_arm.L", "forearm.L"):  # as drawn: depth is not in the strokes
+        assert _image_angle(got[name], want[name]) < 4.0, name
+    assert keyed_frames(arm, "upper_arm.L", "rotation_quaternion") or keyed_frames(
+        arm, "upper_arm.L", "rotation_euler")
+
+
+def test_closest_point_and_order_options(humanoid) -> None:
+    arm, _, stick, _ = humanoid
+    builders.apply_rotations(arm, {"forearm.L": ((0.0, 1.0, 0.0), -25.0)})
+    strokes = ab.evaluated_polylines(stick)
+    builders.pose_humanoid(arm, "rest")
+    builders.add_grease_pencil("Sketch", strokes)
+    result = _run(bpy.ops.gesture_pose.pose_abstraction, arm, sketch="Sketch",
+                  abstraction="Stick Figure", correspondence="CLOSEST", assignment="ORDER",
+                  insert_keys=False)
+    assert result == {"FINISHED"}
+    assert _mean_px_distance(ab.evaluated_polylines(stick), strokes) < 2.0
+    assert not keyed_frames(arm, "upper_arm.L", "rotation_quaternion")
+
+
+def _bone_motion(arm, name: str) -> np.ndarray:
+    pb = arm.pose.bones[name]
+    return np.array(arm.matrix_world @ pb.matrix @ pb.bone.matrix_local.inverted()
+                    @ arm.matrix_world.inverted())
+
+
+def test_drawover_moves_the_forearm(humanoid) -> None:
+    arm, mesh, _, _ = humanoid
+    m = np.array(arm.matrix_world)
+    bone = arm.data.bones["forearm.L"]
+    head, tail = (m[:3, :3] @ np.array(v) + m[:3, 3] for v in (bone.head_local,
+                                                                 bone.tail_local))
+    source = head + np.linspace(0.15, 0.9, 25)[:, None] * (tail - head) + [0, -0.2, 0]
+    builders.apply_rotations(arm, {"forearm.L": ((0.0, 1.0, 0.0), -50.0)})
+    bpy.context.view_layer.update()
+    motion = _bone_motion(arm, "forearm.L")
+    want = _bone_dirs(arm)["forearm.L"]
+    target = source @ motion[:3, :3].T + motion[:3, 3]
+    builders.pose_humanoid(arm, "rest")
+    rest = _bone_dirs(arm)
+    sketch = builders.add_grease_pencil("Sketch", [source, target])
+    result = _run(bpy.ops.gesture_pose.drawover, arm, sketch="Sketch")
+    assert result == {"FINISHED"}
+    got = _bone_dirs(arm)
+    assert _image_angle(got["forearm.L"], want) < 5.0
+    assert _angle(got["thigh.R"], rest["thigh.R"]) < 1.0
+    drawing = sketch.data.layers["Lines"].current_frame().drawing
+    assert len(drawing.strokes) == 1  # the source, carried to the new pose
+
+
+def test_drawover_needs_a_stroke_on_the_character(humanoid) -> None:
+    arm, _, _, _ = humanoid
+    far = np.array([[5.0, 0.0, 5.0], [5.5, 0.0, 5.0]])
+    builders.add_grease_pencil("Sketch", [far, far + [0, 0, 0.3]])
+    with pytest.raises(RuntimeError, match="not over the character"):
+        _run(bpy.ops.gesture_pose.drawover, arm, sketch="Sketch")
+
+
+def test_black_box_path_follows_a_constraint(humanoid) -> None:
+    arm, _, stick, _ = humanoid
+    pinned = arm.data.collections.new("Pinned")
+    for b in arm.data.bones:
+        if b.name not in ("upper_arm.L", "forearm.L"):
+            pinned.assign(b)
+    con = arm.pose.bones["forearm.L"].constraints.new("COPY_ROTATION")
+    con.target, con.subtarget = arm, "upper_arm.L"
+    con.mix_mode, con.owner_space, con.target_space = "ADD", "LOCAL", "LOCAL"
+    builders.apply_rotations(arm, {"upper_arm.L": ((0.0, 1.0, 0.0), -30.0)})
+    bpy.context.view_layer.update()
+    strokes = ab.evaluated_polylines(stick)
+    builders.pose_humanoid(arm, "rest")
+    builders.add_grease_pencil("Sketch", strokes)
+    before = _mean_px_distance(ab.evaluated_polylines(stick), strokes)
+    result = _run(bpy.ops.gesture_pose.pose_abstraction, arm, sketch="Sketch",
+                  abstraction="Stick Figure", black_box=True, representatives=60,
+                  max_iterations=15)
+    assert result == {"FINISHED"}
+    after = _mean_px_distance(ab.evaluated_polylines(stick), strokes)
+    assert before > 10.0 and after < 1.5
