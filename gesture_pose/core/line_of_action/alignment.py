@@ -108,9 +108,34 @@ def circle_of(
     return centre, math.sqrt(max(length * length - h * h, 0.0))
 
 
+@dataclass(frozen=True)
+class StrokeRays:
+    """The rays through a sampled stroke, with what every crossing test needs.
+
+    Attributes:
+        params: Arc lengths of the samples, shape ``(m,)``.
+        origins: Ray origins, shape ``(m, 3)``.
+        directions: Unit ray directions, shape ``(m, 3)``.
+        origin_depth: View depth of each origin, shape ``(m,)``.
+        rate: Depth gained per unit along each ray, shape ``(m,)``.
+    """
+
+    params: np.ndarray
+    origins: np.ndarray
+    directions: np.ndarray
+    origin_depth: np.ndarray
+    rate: np.ndarray
+
+    @classmethod
+    def through(cls, view: ViewOps, params: np.ndarray, pixels: np.ndarray) -> StrokeRays:
+        """Rays through stroke samples ``pixels`` (shape ``(m, 2)``) at arc lengths ``params``."""
+        origins, directions = view.rays(pixels)
+        return cls(params, origins, directions, view.depth(origins), directions @ view.forward)
+
+
 def stroke_circle_crossing(
-    view: ViewOps, origins: np.ndarray, directions: np.ndarray, params: np.ndarray,
-    parent: np.ndarray, length: float, plane_depth: float, s_from: float, s_near: float,
+    view: ViewOps, rays: StrokeRays, parent: np.ndarray, length: float, plane_depth: float,
+    s_from: float, s_near: float,
 ) -> float | None:
     """Arc length where the stroke's rays cross the joint's circle, nearest ``s_near``.
 
@@ -120,9 +145,7 @@ def stroke_circle_crossing(
 
     Args:
         view: Camera operations.
-        origins: Ray origins of the stroke samples, shape ``(m, 3)``.
-        directions: Unit ray directions, shape ``(m, 3)``.
-        params: Arc lengths of the samples, shape ``(m,)``.
+        rays: The rays through the stroke's samples.
         parent: Placed joint ``x_i``, shape ``(3,)``.
         length: Segment length.
         plane_depth: View depth of the joint's plane.
@@ -135,13 +158,14 @@ def stroke_circle_crossing(
         does not cross the circle after ``s_from``.
     """
     centre, radius = circle_of(view, parent, length, plane_depth)
+    params = rays.params
     i0 = int(np.searchsorted(params, s_from))
     i1 = int(np.searchsorted(params, s_near + (s_near - s_from) + 4.0)) + 1
-    o, d = origins[i0:i1], directions[i0:i1]
-    if len(o) < 2:
+    if i1 - i0 < 2:
         return None
-    t = (plane_depth - view.depth(o)) / (d @ view.forward)
-    f = np.linalg.norm(o + t[:, None] * d - centre, axis=1) - radius
+    t = (plane_depth - rays.origin_depth[i0:i1]) / rays.rate[i0:i1]
+    rel = rays.origins[i0:i1] - centre + t[:, None] * rays.directions[i0:i1]
+    f = np.sqrt(np.einsum("ij,ij->i", rel, rel)) - radius
     cross = np.flatnonzero(np.sign(f[:-1]) * np.sign(f[1:]) <= 0)
     if cross.size == 0:
         return None

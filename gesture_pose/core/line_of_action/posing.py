@@ -15,7 +15,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..skeleton import PoseState, Skeleton
-from .alignment import ViewOps, joint_plane_depth, place_joint, stroke_circle_crossing
+from .alignment import (
+    StrokeRays,
+    ViewOps,
+    joint_plane_depth,
+    place_joint,
+    stroke_circle_crossing,
+)
 from .chain import next_candidates
 from .features import SampledStroke, feature_param, renormalize_param
 from .options import PlaneMode, StrokeOptions, Tracking
@@ -117,13 +123,17 @@ class ChainState:
             return sk.rest_frames[bone] if p >= 0 else rel_rot
         return self.frames[p] @ rel_rot
 
-    def refresh(self, bone: int) -> None:
-        """Recompute ``bone``'s world head, tail and frame from its (current) parent."""
+    def refresh_head(self, bone: int) -> None:
+        """Recompute ``bone``'s world head from its (current) parent."""
         sk = self.skeleton
         rel_rot, rel_off = sk.rest_relative
         off = rel_off[bone] + rel_rot[bone] @ self.translations[bone]
         p = sk.parents[bone]
         self.heads[bone] = off if p < 0 else self.heads[p] + self.frames[p] @ off
+
+    def refresh(self, bone: int) -> None:
+        """Recompute ``bone``'s world head, tail and frame from its (current) parent."""
+        self.refresh_head(bone)
         self.set_rotation(bone, self.rotations[bone])
 
     def set_rotation(self, bone: int, local: np.ndarray) -> None:
@@ -216,7 +226,7 @@ class _Walker:
         self.tail_depth = view.depth(cs.tails)
         self.crossing = options.feature_extraction and not self.shape
         if self.crossing:
-            self.origins, self.directions = view.rays(sampled.points)
+            self.rays = StrokeRays.through(view, sampled.params, sampled.points)
         right = np.cross(view.forward, [0.0, 0.0, 1.0])
         if np.linalg.norm(right) < 1e-6:
             right = np.cross(view.forward, [0.0, 1.0, 0.0])
@@ -225,11 +235,10 @@ class _Walker:
     def projected_length(self, start: np.ndarray, end: np.ndarray) -> float:
         """Pixels the segment covers now, or would cover orthogonal to the view (plane)."""
         if self.plane:
-            length = float(np.linalg.norm(end - start))
-            px = self.view.project(np.stack([start, start + self.right * length]))
-        else:
-            px = self.view.project(np.stack([start, end]))
-        return float(np.linalg.norm(px[1] - px[0]))
+            dx, dy, dz = (end - start).tolist()
+            end = start + self.right * math.sqrt(dx * dx + dy * dy + dz * dz)
+        (x0, y0), (x1, y1) = self.view.project(np.array([start, end])).tolist()
+        return math.hypot(x1 - x0, y1 - y0)
 
     def target(self, s_prev: float, lp: float,
                landed_prev: np.ndarray) -> tuple[float, np.ndarray]:
@@ -264,9 +273,7 @@ class _Walker:
         lp = self.projected_length(head, seg_end)
         s, tgt = self.target(s_prev, lp, landed_prev)
         if self.crossing:
-            root = stroke_circle_crossing(
-                self.view, self.origins, self.directions, self.sampled.params, head, length,
-                depth, s_prev, s)
+            root = stroke_circle_crossing(self.view, self.rays, head, length, depth, s_prev, s)
             if root is not None and abs(root - s) <= max(lp, 2.0 * self.sampled.step):
                 s, tgt = root, self.sampled.at(root)
         placed = place_joint(self.view, head, seg_end, length, tgt, depth,
@@ -324,7 +331,7 @@ def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: Cha
         else:
             kids = next_candidates(skeleton, bone, spec.direction_path)
         for k in kids.tolist():
-            cs.refresh(k)  # where the segment ends before the bone turns
+            cs.refresh_head(k)  # where the segment ends before the bone turns
         ends = _segment_ends(skeleton, cs, bone, kids)
         results = [walker.try_bone(bone, end, int(m[0]) if m.size else -1, s_prev, landed_prev)
                    for end, m in ends]
