@@ -189,7 +189,7 @@ def test_resampling_is_exact_under_skinning() -> None:
     skel = tree_skeleton()
     y, layout = stick_abstraction(skel, per_bone=5)
     mat, new = resampling_matrix(np.einsum("mnj->mj", y)[:, :3], layout, budget=90)
-    assert new.n_points >= 90 - 6 and new.n_curves == 6
+    assert 60 <= new.n_points <= 96 and new.n_curves == 6
     yr = resample_rigged(y, mat)
     posed = pose_bones(skel, in_plane_pose(skel, np.linspace(-0.5, 0.5, 6)))
     np.testing.assert_allclose(skin(posed, yr), mat @ skin(posed, y), atol=1e-12)

@@ -101,8 +101,9 @@ def resampling_matrix(points: np.ndarray, layout: CurveLayout,
     for i, count in enumerate(counts):
         sl = layout.curve(i)
         s = polyline_arclength(pts[sl])
-        u = np.linspace(0.0, s[-1], count)
-        if layout.n_points <= budget:
+        keep_raw = layout.n_points <= budget
+        u = np.linspace(0.0, s[-1], max(count - len(s), 2) if keep_raw else count)
+        if keep_raw:
             u = np.unique(np.concatenate([u, s]))
             u = u[np.concatenate([[True], np.diff(u) > 1e-9 * s[-1]])]
             count = len(u)
