@@ -196,7 +196,7 @@ def save_abstraction_scene(path: str | Path, pose_name: str = "wave") -> Path:
     bpy.context.view_layer.update()
     strokes = evaluated_polylines(stick)
     builders.pose_humanoid(arm_obj, "rest")
-    builders.add_grease_pencil("Sketch", strokes)
+    builders.add_grease_pencil("Sketch", toward_camera(strokes))
     bpy.context.scene["gesture_pose_sample"] = "abstraction"
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -207,3 +207,108 @@ def save_abstraction_scene(path: str | Path, pose_name: str = "wave") -> Path:
 if __name__ == "__main__":
     print(save_abstraction_scene(sys.argv[1] if len(sys.argv) > 1
                                  else ROOT / "sample_scenes" / "abstraction.blend"))
+
+
+def toward_camera(polylines: Sequence[np.ndarray], distance: float = 0.3) -> list[np.ndarray]:
+    """Slide points along their rays toward the scene camera (same picture, drawn in front)."""
+    eye = np.array(bpy.context.scene.camera.matrix_world.translation)
+    out = []
+    for p in polylines:
+        d = eye - p
+        out.append(p + distance * d / np.linalg.norm(d, axis=1, keepdims=True))
+    return out
+
+
+def _overlay(name: str, polylines: Sequence[np.ndarray], color: Sequence[float],
+             radius: float = 0.012) -> bpy.types.Object:
+    """A Grease Pencil object showing polylines in one colour, in front (for pictures)."""
+    from gesture_pose.blender.read_strokes import write_strokes
+
+    polylines = toward_camera(polylines)
+    obj = bpy.data.objects.get(name)
+    if obj is None:
+        obj = bpy.data.objects.new(name, bpy.data.grease_pencils.new(name))
+        bpy.context.scene.collection.objects.link(obj)
+    write_strokes(obj, "Lines", list(polylines), replace=True, color=color, radius=radius)
+    return obj
+
+
+def _render(path: Path, size: int = 480) -> None:
+    scene = bpy.context.scene
+    scene.render.engine = "BLENDER_WORKBENCH"
+    scene.render.resolution_x = scene.render.resolution_y = size
+    scene.render.resolution_percentage = 100
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True)
+
+
+def render_figures(outdir: str | Path) -> list[Path]:
+    """Render the documentation pictures of the abstraction mode headless (Workbench).
+
+    Pictures: ``abstraction_input.png`` (rest pose, stick figure in blue, new drawing in
+    red), ``abstraction_result.png`` (after Pose from Abstraction), ``abstraction_outline.png``
+    (the outline abstraction), ``abstraction_drawover_input.png`` and
+    ``abstraction_drawover_result.png`` (draw-over on the left forearm).
+
+    Args:
+        outdir: Folder for the PNG files.
+
+    Returns:
+        The written paths.
+    """
+    import gesture_pose
+
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    gesture_pose.register()
+    arm_obj, mesh_obj = builders.build_humanoid()
+    stick, outline = add_abstractions(arm_obj, mesh_obj)
+    builders.add_light()
+    builders.add_camera(arm_obj, resolution=(480, 480), margin=1.5)
+    builders.pose_humanoid(arm_obj, "wave")
+    bpy.context.view_layer.update()
+    target = evaluated_polylines(stick)
+    builders.pose_humanoid(arm_obj, "rest")
+    bpy.context.view_layer.update()
+    builders.add_grease_pencil("Sketch", toward_camera(target, 0.35), radius=0.006)
+    blue = (0.1, 0.35, 0.95, 1.0)
+    written = []
+    _overlay("Abstraction View", evaluated_polylines(stick), blue)
+    written.append(out / "abstraction_input.png")
+    _render(written[-1])
+    override = {"active_object": arm_obj, "object": arm_obj, "selected_objects": [arm_obj]}
+    with bpy.context.temp_override(**override):
+        bpy.ops.gesture_pose.pose_abstraction(sketch="Sketch", abstraction="Stick Figure")
+    bpy.context.view_layer.update()
+    _overlay("Abstraction View", evaluated_polylines(stick), blue)
+    written.append(out / "abstraction_result.png")
+    _render(written[-1])
+    arm_obj.animation_data_clear()
+    builders.pose_humanoid(arm_obj, "rest")
+    bpy.data.objects.remove(bpy.data.objects["Sketch"])
+    bpy.context.view_layer.update()
+    _overlay("Abstraction View", evaluated_polylines(outline), blue)
+    written.append(out / "abstraction_outline.png")
+    _render(written[-1])
+    # Draw-over: a stroke along the left forearm, redrawn raised.
+    m = np.array(arm_obj.matrix_world)
+    bone = arm_obj.data.bones["forearm.L"]
+    head, tail = (m[:3, :3] @ np.array(v) + m[:3, 3] for v in (bone.head_local,
+                                                                 bone.tail_local))
+    source = head + np.linspace(0.1, 0.95, 30)[:, None] * (tail - head) + [0, -0.2, 0]
+    pivot = head + [0, -0.2, 0]
+    ang = np.radians(-70.0)
+    rot = np.array([[np.cos(ang), 0, np.sin(ang)], [0, 1, 0], [-np.sin(ang), 0, np.cos(ang)]])
+    target_dw = (source - pivot) @ rot.T + pivot
+    _overlay("Abstraction View", [], blue)
+    builders.add_grease_pencil("Sketch", toward_camera([source, target_dw], 0.1),
+                               radius=0.006)
+    written.append(out / "abstraction_drawover_input.png")
+    _render(written[-1])
+    with bpy.context.temp_override(**override):
+        bpy.ops.gesture_pose.drawover(sketch="Sketch")
+    bpy.context.view_layer.update()
+    written.append(out / "abstraction_drawover_result.png")
+    _render(written[-1])
+    return written

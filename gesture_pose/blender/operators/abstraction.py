@@ -334,7 +334,8 @@ class GESTUREPOSE_OT_drawover(_SolverProps, GesturePoseOperatorMixin, bpy.types.
                            frame)
             if src_stroke.layer_name != layer_name:
                 remove_strokes(sketch, src_stroke.layer_name, [src_stroke.index], frame)
-            write_strokes(sketch, layer_name, [carried], frame=frame)
+            write_strokes(sketch, layer_name, [carried], frame=frame, replace=False,
+                          radius=float(np.mean(src_stroke.radius)))
         _report(self, result, written, time.perf_counter() - t0, path, job.warnings)
         return {"FINISHED"}
 

@@ -98,7 +98,7 @@ class SolveOptions:
     limits: StepLimits = field(default_factory=StepLimits)
     line_search_steps: int = 8
     damping_decay: float = 0.5
-    min_damping: float = 1e-3
+    min_damping: float = 0.05
 
     def lambdas(self, damping: float = 1.0) -> tuple[float, float, float]:
         """``(lambda_pose, lambda_plane, lambda_dist)`` with the step terms scaled."""
