@@ -167,11 +167,15 @@ def foreshortening_weights(ratios: np.ndarray, sigma_f: float = 0.2,
 
 
 def foreshortening_term(frame: ViewFrame, a: np.ndarray, b: np.ndarray, lengths: np.ndarray,
-                        weights: np.ndarray, n_joints: int) -> LinearTerm:
+                        weights: np.ndarray, n_joints: int,
+                        bind_depth: np.ndarray | None = None) -> LinearTerm:
     """E_v (Eq. 7): penalize depth change along links that the drawing shows unshortened.
 
-    ``E_v = sum_ab v_ab (d_b - d_a)^2 / l_ab^2`` with ``d = forward . X`` and ``v_ab`` from
-    :func:`foreshortening_weights`.
+    ``E_v = sum_ab v_ab (d_b - d_a - e_ab)^2 / l_ab^2`` with ``d = forward . X``, ``v_ab``
+    from :func:`foreshortening_weights` and ``e_ab`` the link's depth change in the bind
+    pose (0 in the paper, which assumes a bind pose in the view plane; with ``e`` a link
+    the drawing shows as usual keeps the depth it has in the bind pose, e.g. feet pointing
+    at a front view).
 
     Args:
         frame: The view.
@@ -180,10 +184,12 @@ def foreshortening_term(frame: ViewFrame, a: np.ndarray, b: np.ndarray, lengths:
         lengths: Rest 3D lengths, world units, shape ``(L,)``.
         weights: ``v_ab``, shape ``(L,)``.
         n_joints: ``J``.
+        bind_depth: ``e_ab``, world units, shape ``(L,)``; zeros when None.
 
     Returns:
         The term, ``L`` rows.
     """
     matrix = _difference_rows(a, b, frame.forward, n_joints)
     w = np.asarray(weights, dtype=float) / np.maximum(lengths, 1e-9) ** 2
-    return LinearTerm("foreshortening", matrix, np.zeros(len(a)), w)
+    target = np.zeros(len(a)) if bind_depth is None else np.asarray(bind_depth, float)
+    return LinearTerm("foreshortening", matrix, target, w)

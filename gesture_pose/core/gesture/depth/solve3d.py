@@ -43,6 +43,8 @@ class DepthOptions:
             (paper: 200).
         sigma_f: Foreshortening fall-off of Eq. 6 (paper: 0.2).
         free_ratio: Relative foreshortening below which a bone is free (paper: 0.6).
+        bind_depth: Measure E_v's depth change from the bind pose's (ours; the paper's
+            bind poses lie in the view plane, where both agree).
         parallel_angle: Drawn angle under which consecutive links get one 3D direction,
             radians (paper: 10 degrees).
         parallel_ratio_gap: Largest difference of the two links' drawn foreshortening for
@@ -60,6 +62,7 @@ class DepthOptions:
     alpha: float = 200.0
     sigma_f: float = 0.2
     free_ratio: float = 0.6
+    bind_depth: bool = True
     parallel_angle: float = float(np.radians(10.0))
     parallel_ratio_gap: float = 0.1
     spline_weight: float = 1.0
@@ -157,7 +160,9 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
     ratios = energies.foreshortening_ratios(embedding.joints2d, a, b, lengths, frame.scale)
     weights = energies.foreshortening_weights(ratios, opts.sigma_f, opts.free_ratio)
     terms = [energies.conformity_term(frame, embedding.joints2d, a, b, lengths, n_j),
-             energies.foreshortening_term(frame, a, b, lengths, weights, n_j)]
+             energies.foreshortening_term(
+                 frame, a, b, lengths, weights, n_j,
+                 frame.depth(X_rest[b] - X_rest[a]) if opts.bind_depth else None)]
     free = np.zeros(n_j, bool)
     free[b] = weights == 0.0
     spline = regularity.spline_term(embedding, X_rest, frame, opts.spline_weight, free)

@@ -1,0 +1,197 @@
+"""Pose and Flip Depth in headless Blender: known poses of the sample characters."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gesture_pose.blender.operators import pose_drawing
+from gesture_pose.blender.read_armature import read_armature
+from gesture_pose.blender.read_mesh import read_skinned_meshes
+from gesture_pose.blender.read_view import camera_from_object
+from gesture_pose.blender.write_pose import keyed_frames, rotation_channel
+from gesture_pose.core.gesture.depth import solve_pose3d
+from gesture_pose.core.gesture.depth.synthetic import project_embedding
+from gesture_pose.core.gesture.embedding import posed_joints
+from gesture_pose.core.gesture.solving import solving_skeleton
+from gesture_pose.core.gesture.trace import trace_contours
+from sample_scenes import builders
+
+bpy = pytest.importorskip("bpy")
+
+FRAME = 7
+
+
+def _foreshortened(arm) -> dict:
+    """Left forearm swung 70 degrees towards a front camera (drawn at a third of its
+    length), right arm raised in the view plane."""
+    bone = arm.data.bones["forearm.L"]
+    d = np.array(bone.tail_local - bone.head_local)
+    axis = np.cross(d / np.linalg.norm(d), [0.0, -1.0, 0.0])
+    return {"forearm.L": (tuple(axis), 70.0), "upper_arm.R": ((0.0, 1.0, 0.0), 40.0)}
+
+
+def _character(kind: str, pose_name: str, direction, ortho: bool = False):
+    """Build a character and camera; return the armature, camera, bind and truth data."""
+    if kind == "humanoid":
+        arm, _ = builders.build_humanoid()
+        rotations = _foreshortened(arm) if pose_name == "foreshortened" else \
+            builders.HUMANOID_POSES[pose_name]
+    else:
+        arm, _ = builders.build_quadruped()
+        rotations = builders.QUADRUPED_POSES[pose_name]
+    cam_obj = builders.add_camera(arm, direction=direction, ortho=ortho)
+    bpy.context.scene.frame_set(FRAME)
+    bind = read_armature(arm)
+    builders.apply_rotations(arm, rotations)
+    bpy.context.view_layer.update()
+    truth = read_armature(arm)
+    builders.reset_pose(arm)
+    bpy.context.view_layer.update()
+    return arm, camera_from_object(cam_obj, bpy.context.scene), bind, truth
+
+
+def _height(skeleton) -> float:
+    pts = np.concatenate([skeleton.rest_heads, skeleton.rest_tails])
+    return float(np.ptp(pts, axis=0).max())
+
+
+def _errors(solving, skeleton, truth_pose, got_pose, camera):
+    """Mean joint error (% of height, root aligned) and the signs of the depth changes
+    (from the rest pose) of the links that both the truth and the result turn in depth by
+    more than a fifth of their length."""
+    tj = posed_joints(solving, skeleton, truth_pose)
+    gj = posed_joints(solving, skeleton, got_pose)
+    gj = gj - gj[0] + tj[0]
+    err = 100.0 * np.linalg.norm(gj - tj, axis=1).mean() / _height(skeleton)
+    rest = solving.rest_joints
+    child = np.flatnonzero(solving.joint_parent >= 0)
+    par = solving.joint_parent[child]
+    f = camera.forward
+    d_truth = (tj[child] - tj[par]) @ f - (rest[child] - rest[par]) @ f
+    d_got = (gj[child] - gj[par]) @ f - (rest[child] - rest[par]) @ f
+    length = np.linalg.norm(rest[child] - rest[par], axis=1)
+    big = (np.abs(d_truth) > 0.2 * length) & (np.abs(d_got) > 0.2 * length)
+    return err, np.sign(d_truth[big]), np.sign(d_got[big])
+
+
+@pytest.mark.parametrize(
+    ("kind", "pose_name", "direction", "limit", "min_turned"),
+    [("humanoid", "foreshortened", (0.0, -1.0, 0.0), 3.0, 1),
+     ("humanoid", "wave", (0.0, -1.0, 0.0), 3.0, 0),
+     ("humanoid", "kick_right_leg", (0.0, -1.0, 0.0), 4.0, 0),
+     ("humanoid", "reach", (0.5, -1.0, 0.2), 8.0, 0),
+     ("quadruped", "tail_up", (1.0, -0.6, 0.2), 5.0, 0),
+     ("quadruped", "paw_forward", (1.0, 0.0, 0.0), 3.0, 0)],
+)
+def test_lifting_recovers_known_poses(registered, kind, pose_name, direction, limit,
+                                      min_turned):
+    arm, cam, bind, truth = _character(kind, pose_name, direction)
+    solving = solving_skeleton(bind.skeleton)
+    emb = project_embedding(bind.skeleton, solving, truth.pose, cam, 0.06, "auto")
+    res = solve_pose3d(bind.skeleton, emb, cam, bind.pose)
+    err, sign_truth, sign_got = _errors(solving, bind.skeleton, truth.pose, res.pose, cam)
+    assert res.converged and np.all(res.ordering_satisfied)
+    assert err < limit
+    # Bones turned clearly in depth turn the same way as in the truth.
+    assert sign_truth.size >= min_turned
+    assert np.array_equal(sign_truth, sign_got)
+    assert res.timings["total"] < 5.0
+
+
+@pytest.fixture
+def traced_humanoid(registered):
+    """Humanoid with its left arm raised, traced from the front into a Grease Pencil sketch;
+    the armature is back at rest (the bind pose)."""
+    arm, cam, bind, truth = _character("humanoid", "raise_left_arm", (0.0, -1.0, 0.0))
+    builders.apply_rotations(arm, builders.HUMANOID_POSES["raise_left_arm"])
+    bpy.context.view_layer.update()
+    meshes = read_skinned_meshes(arm, truth.skeleton)
+    traced = trace_contours(meshes.deformed_vertices, meshes.triangles, cam)
+    builders.reset_pose(arm)
+    bpy.context.view_layer.update()
+    sketch = builders.add_grease_pencil("Sketch", list(traced.world(cam)))
+    return arm, sketch, cam, bind, truth
+
+
+def test_pose_operator_on_a_traced_drawing(traced_humanoid):
+    arm, sketch, cam, bind, truth = traced_humanoid
+    # A bone outside the solving skeleton keeps its local rotation.
+    solving = solving_skeleton(bind.skeleton)
+    outside = [n for i, n in enumerate(bind.names) if i not in set(solving.bones.tolist())]
+    if outside:
+        builders.apply_rotations(arm, {outside[0]: ((1.0, 0.0, 0.0), 20.0)})
+        bpy.context.view_layer.update()
+    before = read_armature(arm)
+    with bpy.context.temp_override(active_object=arm, object=arm):
+        assert bpy.ops.gesture_pose.pose_drawing(armature=arm.name,
+                                                 sketch=sketch.name) == {"FINISHED"}
+    after = read_armature(arm)
+    changed = np.abs(after.pose.rotations - before.pose.rotations).max(axis=(1, 2)) > 1e-6
+    assert changed.any()
+    assert set(np.flatnonzero(changed)) <= set(solving.bones.tolist())
+    for i in np.flatnonzero(changed):
+        channel = rotation_channel(after.rotation_modes[i])
+        assert keyed_frames(arm, after.names[i], channel) == [FRAME]
+    state = after.skeleton.forward(after.pose)
+    np.testing.assert_allclose(np.linalg.norm(state.tails - state.heads, axis=1),
+                               after.skeleton.lengths, rtol=1e-5)
+    fit = sketch.data.layers.get(pose_drawing.FIT_LAYER)
+    assert fit is not None and len(fit.current_frame().drawing.strokes) == solving.n_bones
+    # The fit layer is not read back as drawing: posing again gives the same pose.
+    with bpy.context.temp_override(active_object=arm, object=arm):
+        assert bpy.ops.gesture_pose.pose_drawing(armature=arm.name,
+                                                 sketch=sketch.name) == {"FINISHED"}
+    np.testing.assert_allclose(read_armature(arm).pose.rotations, after.pose.rotations,
+                               atol=1e-6)
+
+
+def test_pose_restarts_from_the_bind_pose(registered, monkeypatch):
+    """Pose on a changed pose gives the same result as from rest: no drift."""
+    arm, cam, bind, truth = _character("humanoid", "step", (0.0, -1.0, 0.0))
+    sketch = builders.add_grease_pencil("Sketch", [np.array([[0.0, -1.0, 0.0],
+                                                             [0.1, -1.0, 0.5]])])
+
+    def oracle_fit(strokes, skeleton, pose, vertices, camera, weights=None, **_kw):
+        return project_embedding(skeleton, solving_skeleton(skeleton), truth.pose, camera,
+                                 0.06, "auto")
+
+    monkeypatch.setattr(pose_drawing, "fit_drawing", oracle_fit)
+    first = pose_drawing.pose_from_drawing(arm, sketch, cam, insert_keys=False)
+    bpy.context.view_layer.update()
+    posed = read_armature(arm).pose.rotations.copy()
+    err, _, _ = _errors(first.embedding.solving, bind.skeleton, truth.pose,
+                        read_armature(arm).pose, cam)
+    assert err < 8.0
+    # Disturb the result (as a Pose Stroke refinement would), then Pose again.
+    builders.apply_rotations(arm, {"forearm.L": ((0.0, 1.0, 0.0), 40.0)})
+    bpy.context.view_layer.update()
+    second = pose_drawing.pose_from_drawing(arm, sketch, cam, insert_keys=True)
+    assert second.written
+    np.testing.assert_allclose(read_armature(arm).pose.rotations, posed, atol=1e-9)
+
+
+def test_flip_depth_mirrors_the_limb_and_keys_it(registered):
+    arm, cam, bind, _ = _character("humanoid", "wave", (0.0, -1.0, 0.0), ortho=True)
+    # Swing the left forearm 50 degrees towards the camera.
+    builders.apply_rotations(arm, {"forearm.L": ((1.0, 0.0, 0.0), 50.0)})
+    bpy.context.view_layer.update()
+    before = read_armature(arm)
+    sb = before.skeleton.forward(before.pose)
+    i = before.skeleton.index("forearm.L")
+    with bpy.context.temp_override(active_object=arm, object=arm):
+        assert bpy.ops.gesture_pose.flip_depth(armature=arm.name,
+                                               bone="forearm.L") == {"FINISHED"}
+    after = read_armature(arm)
+    sa = after.skeleton.forward(after.pose)
+    chain = before.skeleton.descendants(i)
+    f = cam.view_directions(sb.heads[i][None])[0]
+    np.testing.assert_allclose((sa.tails[chain] - sb.heads[i]) @ f,
+                               -(sb.tails[chain] - sb.heads[i]) @ f, atol=1e-5)
+    np.testing.assert_allclose(cam.project(sa.tails[chain]), cam.project(sb.tails[chain]),
+                               atol=1e-3)
+    assert abs((sb.tails[i] - sb.heads[i]) @ f) > 0.1  # it had depth to flip
+    others = np.setdiff1d(np.arange(before.skeleton.n_bones), chain)
+    np.testing.assert_allclose(after.pose.rotations[others], before.pose.rotations[others])
+    channel = rotation_channel(after.rotation_modes[i])
+    assert keyed_frames(arm, "forearm.L", channel) == [FRAME]
