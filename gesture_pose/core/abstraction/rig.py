@@ -26,7 +26,7 @@ descendants in the Jacobian (use the black-box path for such rigs).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -98,7 +98,32 @@ class PosedBones:
     scales: np.ndarray
 
 
-def pose_bones(skeleton: Skeleton, pose: RigPose) -> PosedBones:
+@dataclass(frozen=True)
+class RigTables:
+    """Pose-independent tables of a skeleton, computed once per solve.
+
+    Attributes:
+        rest: Rest transforms ``Bw``, ``(n, 4, 4)``.
+        rest_inv: Their inverses, ``(n, 4, 4)``.
+        levels: Bone indices per tree depth.
+        descendants: :func:`descendant_matrix`, ``(n, n)``.
+    """
+
+    rest: np.ndarray
+    rest_inv: np.ndarray
+    levels: tuple[np.ndarray, ...]
+    descendants: np.ndarray
+
+    @classmethod
+    def of(cls, skeleton: Skeleton) -> RigTables:
+        """Compute the tables of ``skeleton``."""
+        rest = rest_matrices(skeleton)
+        return cls(rest, rigid_inverse(rest), tuple(_levels(skeleton.parents)),
+                   descendant_matrix(skeleton))
+
+
+def pose_bones(skeleton: Skeleton, pose: RigPose, tables: RigTables | None = None
+               ) -> PosedBones:
     """Forward kinematics with per-bone uniform scale (Blender's full scale inheritance).
 
     ``A_i = A_p Bw_p^-1 Bw_i M_i`` with ``M_i = [s_i Q_i | t_i]`` (``A_i = Bw_i M_i`` for roots);
@@ -107,20 +132,22 @@ def pose_bones(skeleton: Skeleton, pose: RigPose) -> PosedBones:
     Args:
         skeleton: The rest skeleton.
         pose: Local rotations, scales and translations.
+        tables: Precomputed tables of ``skeleton`` (computed here when None).
 
     Returns:
         The posed transforms.
     """
     n = skeleton.n_bones
-    rest = rest_matrices(skeleton)
+    tables = RigTables.of(skeleton) if tables is None else tables
+    rest = tables.rest
     local = np.tile(np.eye(4), (n, 1, 1))
     local[:, :3, :3] = pose.rotations * pose.scales[:, None, None]
     local[:, :3, 3] = pose.translations
     rest_local = rest @ local
     world = np.empty((n, 4, 4))
     parents = skeleton.parents
-    rest_inv = rigid_inverse(rest)
-    for level in _levels(parents):
+    rest_inv = tables.rest_inv
+    for level in tables.levels:
         p = parents[level]
         roots, kids, kp = level[p < 0], level[p >= 0], p[p >= 0]
         world[roots] = rest_local[roots]
@@ -181,10 +208,15 @@ class LbsRig:
     space: ParameterSpace
     abstraction_rest: np.ndarray
     representative_rest: np.ndarray
+    tables: RigTables = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        """Precompute the skeleton's tables."""
+        object.__setattr__(self, "tables", RigTables.of(self.skeleton))
 
     def evaluate(self, pose: RigPose) -> tuple[np.ndarray, np.ndarray]:
         """Abstraction points ``(m, 3)`` and representative vertices ``(k, 3)`` at ``pose``."""
-        posed = pose_bones(self.skeleton, pose)
+        posed = pose_bones(self.skeleton, pose, self.tables)
         return skin(posed, self.abstraction_rest), skin(posed, self.representative_rest)
 
     def jacobians(self, pose: RigPose) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -193,8 +225,8 @@ class LbsRig:
         Returns:
             ``(x (m, 3), z (k, 3), J_x (m, 3, P), J_z (k, 3, P))``.
         """
-        posed = pose_bones(self.skeleton, pose)
-        dmat = descendant_matrix(self.skeleton)
+        posed = pose_bones(self.skeleton, pose, self.tables)
+        dmat = self.tables.descendants
         out = []
         for rest in (self.abstraction_rest, self.representative_rest):
             out.append(skin(posed, rest))
