@@ -158,3 +158,69 @@ def test_black_box_path_follows_a_constraint(humanoid) -> None:
     assert result == {"FINISHED"}
     after = _mean_px_distance(ab.evaluated_polylines(stick), strokes)
     assert before > 10.0 and after < 1.5
+
+
+def _parent_to_bone(obj, arm, bone: str) -> None:
+    world = obj.matrix_world.copy()
+    obj.parent, obj.parent_type, obj.parent_bone = arm, "BONE", bone
+    obj.matrix_world = world
+    bpy.context.view_layer.update()
+
+
+def test_curve_and_grease_pencil_abstractions_parented_to_bones(humanoid) -> None:
+    arm, _, _, _ = humanoid
+    m = np.array(arm.matrix_world)
+    coll = bpy.data.collections.new("Arm Lines")
+    bpy.data.collections["Sketch Abstraction"].children.link(coll)
+    lines = {}
+    for bone_name in ("upper_arm.L", "forearm.L"):
+        bone = arm.data.bones[bone_name]
+        head, tail = (m[:3, :3] @ np.array(v) + m[:3, 3] for v in (bone.head_local,
+                                                                     bone.tail_local))
+        lines[bone_name] = head + np.linspace(0.05, 0.95, 12)[:, None] * (tail - head)
+    curve_data = bpy.data.curves.new("UpperLine", "CURVE")
+    spline = curve_data.splines.new("POLY")
+    spline.points.add(len(lines["upper_arm.L"]) - 1)
+    for p, co in zip(spline.points, lines["upper_arm.L"], strict=True):
+        p.co = (*co, 1.0)
+    curve = bpy.data.objects.new("UpperLine", curve_data)
+    coll.objects.link(curve)
+    gp = builders.add_grease_pencil("ForeLine", [lines["forearm.L"]])
+    bpy.context.scene.collection.objects.unlink(gp)
+    coll.objects.link(gp)
+    _parent_to_bone(curve, arm, "upper_arm.L")
+    _parent_to_bone(gp, arm, "forearm.L")
+    bpy.context.scene.gesture_pose_abstraction = coll
+    builders.apply_rotations(arm, {"upper_arm.L": ((0.0, 1.0, 0.0), -40.0),
+                                   "forearm.L": ((0.0, 1.0, 0.0), -30.0)})
+    bpy.context.view_layer.update()
+    want = _bone_dirs(arm)
+    from gesture_pose.blender.abstraction_io import read_abstraction, resolve_abstraction
+    from gesture_pose.blender.read_armature import read_armature
+
+    objs = resolve_abstraction(bpy.context)
+    assert [o.name for o in objs] == ["ForeLine", "UpperLine"]
+    data = read_abstraction(objs, read_armature(arm), arm,
+                            bpy.context.evaluated_depsgraph_get())
+    strokes = [data.points[data.layout.curve(i)] for i in range(data.layout.n_curves)]
+    builders.pose_humanoid(arm, "rest")
+    builders.add_grease_pencil("Sketch", strokes)
+    result = _run(bpy.ops.gesture_pose.pose_abstraction, arm, sketch="Sketch")
+    assert result == {"FINISHED"}
+    got = _bone_dirs(arm)
+    for name in ("upper_arm.L", "forearm.L"):
+        assert _image_angle(got[name], want[name]) < 3.0, name
+
+
+def test_sample_scene_saves_with_two_abstractions(registered, tmp_path) -> None:
+    path = ab.save_abstraction_scene(tmp_path / "abstraction.blend")
+    assert path.exists()
+    bpy.ops.wm.open_mainfile(filepath=str(path))
+    root = bpy.data.collections["Sketch Abstraction"]
+    assert [c.name for c in root.children] == ["Stick Figure", "Outline"]
+    assert len(bpy.data.objects["Sketch"].data.layers["Lines"].current_frame().drawing
+               .strokes) == len(ab.STICK_CHAINS)
+    arm = bpy.data.objects["Humanoid"]
+    result = _run(bpy.ops.gesture_pose.pose_abstraction, arm, sketch="Sketch",
+                  abstraction="Stick Figure", insert_keys=False)
+    assert result == {"FINISHED"}
