@@ -105,7 +105,7 @@ def direction_constraints(triples: np.ndarray, rest_joints: np.ndarray, X: np.nd
 
 
 def _tree_distance(joint_parent: np.ndarray) -> np.ndarray:
-    """Number of links between every pair of joints, shape ``(J, J)``."""
+    """Number of links between every pair of joints (``J`` across trees), ``(J, J)``."""
     n = len(joint_parent)
     path = [[j] for j in range(n)]
     for j in range(n):
@@ -116,8 +116,8 @@ def _tree_distance(joint_parent: np.ndarray) -> np.ndarray:
     for i in range(n):
         anc_i = {a: k for k, a in enumerate(path[i])}
         for j in range(n):
-            common = next(a for a in path[j] if a in anc_i)
-            dist[i, j] = depth[i] + depth[j] - 2 * depth[common]
+            common = next((a for a in path[j] if a in anc_i), -1)
+            dist[i, j] = n if common < 0 else depth[i] + depth[j] - 2 * depth[common]
     return dist
 
 
