@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from gesture_pose.core.abstraction.coarsening import coarsen, neighbour_pairs
-from gesture_pose.core.abstraction.energies import pair_distances, regularizer_terms
+from gesture_pose.core.abstraction.energies import pair_distances, pose_metric, regularizer_terms
 from gesture_pose.core.abstraction.parameters import ParameterSpace, RigPose
 from gesture_pose.core.abstraction.rig import (
     descendant_matrix,
@@ -34,14 +34,13 @@ def _mesh_jacobian(rings: int, segments: int):
 
 
 def _full_reference(z, jac, z_start, dp):
-    """The regularizers written directly as sums over every vertex, for a step ``dp``."""
+    """``W_plane`` and ``W_pose``'s metric written directly as sums over every vertex."""
     cam = front_camera()
-    dz = jac @ dp
     v = len(z)
-    w_pose = LAMBDAS[0] / v * np.sum(dz * dz)
-    depth = (z + dz - z_start) @ cam.forward
+    depth = (z + jac @ dp - z_start) @ cam.forward
     w_plane = LAMBDAS[1] / v * np.sum(depth**2)
-    return w_pose + w_plane
+    metric = np.array([np.sum(jac[:, :, c] ** 2) for c in range(jac.shape[2])]) / v
+    return w_plane, metric
 
 
 def test_coarsened_regularizers_equal_full_when_k_is_vertex_count() -> None:
@@ -55,27 +54,45 @@ def test_coarsened_regularizers_equal_full_when_k_is_vertex_count() -> None:
     for _ in range(3):
         dp = rng.normal(scale=0.05, size=space.n_params)
         model = sum(e.values()) + 2 * g @ dp + dp @ h @ dp
-        np.testing.assert_allclose(model, _full_reference(z, jac, z_start, dp), rtol=1e-10)
+        w_plane, metric = _full_reference(z, jac, z_start, dp)
+        np.testing.assert_allclose(model, w_plane, rtol=1e-10)
+    np.testing.assert_allclose(pose_metric(jac, coarse), metric, rtol=1e-10)
 
 
 def test_coarse_regularizer_approximates_full_and_ignores_resolution() -> None:
-    values = []
+    shapes = []
     for rings, segments in ((8, 12), (24, 32)):
         z, jac, space = _mesh_jacobian(rings, segments)
         coarse = coarsen(z, k=200)
         assert len(coarse.indices) <= 200 and coarse.masses.sum() == len(z)
         rng = np.random.default_rng(2)
         dp = rng.normal(scale=0.05, size=space.n_params)
-        h, _, _ = regularizer_terms(front_camera(), z[coarse.indices], jac[coarse.indices],
-                                    coarse, z[coarse.indices], np.zeros(len(coarse.pairs)),
-                                    (LAMBDAS[0], 0.0, 0.0))
-        full = LAMBDAS[0] / len(z) * np.sum((jac @ dp) ** 2)
-        np.testing.assert_allclose(dp @ h @ dp, full, rtol=0.1)
-        values.append(h.shape)
-    assert values[0] == values[1]  # same problem size at 576 and 4608 vertices
+        zr, jr = z[coarse.indices], jac[coarse.indices]
+        h, _, _ = regularizer_terms(front_camera(), zr, jr, coarse, zr,
+                                    np.zeros(len(coarse.pairs)), (0.0, LAMBDAS[1], 0.0))
+        w_plane, metric = _full_reference(z, jac, z, dp)
+        np.testing.assert_allclose(dp @ h @ dp, w_plane, rtol=0.1)
+        np.testing.assert_allclose(pose_metric(jr, coarse), metric, rtol=0.1)
+        shapes.append(h.shape)
+    assert shapes[0] == shapes[1]  # same problem size at 576 and 4608 vertices
 
 
 def test_neighbour_pairs_are_unique_and_undirected() -> None:
     pts = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [10, 0, 0]])
     pairs = neighbour_pairs(pts, neighbours=1)
     np.testing.assert_array_equal(pairs, [[0, 1], [1, 2], [2, 3]])
+
+
+def test_dist_pairs_only_join_vertices_moved_by_the_same_bones() -> None:
+    # Two touching clusters of points driven by different bones.
+    rng = np.random.default_rng(3)
+    a = rng.normal(scale=0.01, size=(30, 3))
+    b = rng.normal(scale=0.01, size=(30, 3)) + [0.03, 0, 0]
+    w = np.zeros((60, 2))
+    w[:30, 0] = 1.0
+    w[30:, 1] = 1.0
+    loose = coarsen(np.concatenate([a, b]), k=60)
+    tied = coarsen(np.concatenate([a, b]), k=60, weights=w)
+    side = lambda c: (c.indices[c.pairs] >= 30)  # noqa: E731
+    assert np.any(side(loose)[:, 0] != side(loose)[:, 1])
+    assert len(tied.pairs) > 0 and np.all(side(tied)[:, 0] == side(tied)[:, 1])

@@ -135,7 +135,7 @@ def _inversion_problem():
     """A chain whose last bone is drawn pointing (almost) backwards."""
     skel = chain_skeleton(np.array([[0, 0, 0.0], [0, 0, 0.6], [0, 0, 1.1], [0, 0, 1.5]]))
     n = skel.n_bones
-    ang = np.radians(160.0)
+    ang = np.radians(175.0)
     target = in_plane_pose(skel, np.array([0.0, 0.0, ang]))
     space = ParameterSpace.from_masks(skel.parents, np.ones(n, bool), np.ones(n, bool))
     return skel, target, make_problem(skel, target, space)

@@ -67,7 +67,8 @@ def neighbour_pairs(points: np.ndarray, neighbours: int = DEFAULT_NEIGHBOURS) ->
 
 
 def coarsen(vertices: np.ndarray, k: int = DEFAULT_K, neighbours: int = DEFAULT_NEIGHBOURS,
-            seed: int = 0) -> Coarsening:
+            seed: int = 0, weights: np.ndarray | None = None,
+            min_similarity: float = 0.95) -> Coarsening:
     """Cluster mesh vertices and pick one representative per cluster (Eq. 12).
 
     Args:
@@ -75,6 +76,11 @@ def coarsen(vertices: np.ndarray, k: int = DEFAULT_K, neighbours: int = DEFAULT_
         k: Number of clusters; ``k >= V`` keeps every vertex.
         neighbours: Neighbours per representative for ``W_dist``.
         seed: Seed of the k-means initialization (deterministic results).
+        weights: Bone weights of the vertices ``(V, n)``; when given, ``W_dist`` pairs are
+            kept only between representatives moved by the same bones (cosine similarity
+            of their weights at least ``min_similarity``), so that a hand resting near a
+            thigh is not tied to it.
+        min_similarity: Threshold of that similarity.
 
     Returns:
         The coarsening.
@@ -107,5 +113,9 @@ def coarsen(vertices: np.ndarray, k: int = DEFAULT_K, neighbours: int = DEFAULT_
         remap[used] = np.arange(len(used))
         labels = remap[labels]
     pairs = neighbour_pairs(v[idx], neighbours)
+    if weights is not None and len(pairs):
+        w = np.asarray(weights, dtype=float)[idx]
+        w = w / np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-12)
+        pairs = pairs[np.sum(w[pairs[:, 0]] * w[pairs[:, 1]], axis=1) >= min_similarity]
     pair_masses = 0.5 * (masses[pairs[:, 0]] + masses[pairs[:, 1]]) if len(pairs) else np.zeros(0)
     return Coarsening(idx, masses, pairs, pair_masses, labels)

@@ -8,8 +8,12 @@ depth) so that every term is in squared world units and the paper's weights appl
 
 - ``E_match`` (Eq. 3): mean squared distance between the projected abstraction
   correspondences and their stroke targets.
-- ``W_pose`` (Eq. 8, lambda 0.5): mean squared displacement of the (representative) mesh
-  vertices in the update, keeping the new pose near the current one.
+- ``W_pose`` (Eq. 8, lambda 0.5): squared change of every parameter since the start of the
+  solve, each weighted by how much mesh it moves (the diagonal of ``J_z^T M J_z`` over the
+  representative vertices, so radians become world units): the new pose stays near the
+  one before the drawing, and parameters the drawing does not see stay where they were
+  (no coupling, so an unconstrained hand is not bent back to keep still). The solver lowers
+  its weight over the iterations (see :mod:`.solver`) so reachable drawings are matched.
 - ``W_plane`` (Eq. 9, lambda 0.01): mean squared displacement along the view axis since the
   start of the solve (depth cannot be seen in a drawing, so poses that keep the mesh in
   its view planes are preferred among those matching the strokes equally well).
@@ -110,7 +114,7 @@ def regularizer_terms(camera: Camera, z: np.ndarray, jac_z: np.ndarray, coarse: 
                       z_start: np.ndarray, rest_distances: np.ndarray,
                       lambdas: tuple[float, float, float]
                       ) -> tuple[np.ndarray, np.ndarray, dict]:
-    """``W_pose``, ``W_plane`` and ``W_dist`` (Eqs. 8-10) on representative vertices.
+    """``W_pose`` metric, ``W_plane`` and ``W_dist`` (Eqs. 8-10) on representative vertices.
 
     Args:
         camera: The view (for the view rays of ``W_plane``).
@@ -119,25 +123,24 @@ def regularizer_terms(camera: Camera, z: np.ndarray, jac_z: np.ndarray, coarse: 
         coarse: Masses and neighbour pairs of the representatives.
         z_start: Representative vertices before the solve, shape ``(k, 3)``.
         rest_distances: Pair distances before the solve, shape ``(e,)``.
-        lambdas: ``(lambda_pose, lambda_plane, lambda_dist)``.
+        lambdas: ``(lambda_pose, lambda_plane, lambda_dist)`` (``lambda_pose`` unused here).
 
     Returns:
-        ``(H, g, energies)`` with energies of the three terms at ``dp = 0``.
+        ``(H, g, energies)`` of ``W_plane`` and ``W_dist`` at ``dp = 0`` (``W_pose`` is
+        :func:`pose_term`).
     """
-    lam_pose, lam_plane, lam_dist = lambdas
+    _, lam_plane, lam_dist = lambdas
     total = coarse.masses.sum()
     p = jac_z.shape[2]
     h = np.zeros((p, p))
     g = np.zeros(p)
-    w_pose = lam_pose * coarse.masses / total
-    hp, _, _ = _quadratic(np.zeros((len(z), 3)), jac_z, w_pose)
     view = np.broadcast_to(camera.forward, z.shape)
     jdepth = np.einsum("kd,kdp->kp", view, jac_z)[:, None, :]
     depth = np.sum(view * (z - z_start), axis=1)[:, None]
     hd, gd, ed = _quadratic(depth, jdepth, lam_plane * coarse.masses / total)
-    h += hp + hd
+    h += hd
     g += gd
-    energies = {"W_pose": 0.0, "W_plane": ed, "W_dist": 0.0}
+    energies = {"W_plane": ed, "W_dist": 0.0}
     if len(coarse.pairs) and lam_dist > 0:
         a, b = coarse.pairs[:, 0], coarse.pairs[:, 1]
         diff = z[a] - z[b]
@@ -152,6 +155,37 @@ def regularizer_terms(camera: Camera, z: np.ndarray, jac_z: np.ndarray, coarse: 
     return h, g, energies
 
 
+def pose_metric(jac_z: np.ndarray, coarse: Coarsening) -> np.ndarray:
+    """Mesh motion per unit of each parameter: ``diag(J_z^T M J_z) / sum(M)``, ``(P,)``.
+
+    Args:
+        jac_z: ``J_z`` of the representatives, shape ``(k, 3, P)``.
+        coarse: Their masses (Eq. 12).
+
+    Returns:
+        World units squared per squared parameter unit (floored so no entry is zero).
+    """
+    m = coarse.masses / coarse.masses.sum()
+    diag = np.einsum("k,kdp->p", m, jac_z * jac_z)
+    return np.maximum(diag, 1e-6 * max(float(diag.max(initial=0.0)), 1e-12))
+
+
+def pose_term(metric: np.ndarray, deviation: np.ndarray, lam: float
+              ) -> tuple[np.ndarray, np.ndarray, float]:
+    """``W_pose`` of Eq. 8: ``lam sum_i D_i (e_i + dp_i)^2``.
+
+    Args:
+        metric: ``D`` from :func:`pose_metric`, shape ``(P,)``.
+        deviation: Parameters' change since the start ``e``, shape ``(P,)``.
+        lam: Weight.
+
+    Returns:
+        ``(H, g, E)`` at ``dp = 0``.
+    """
+    w = lam * metric
+    return np.diag(w), w * deviation, float(w @ deviation**2)
+
+
 def pair_distances(z: np.ndarray, coarse: Coarsening) -> np.ndarray:
     """Distances between the representative pairs, shape ``(e,)``."""
     if len(coarse.pairs) == 0:
@@ -159,20 +193,18 @@ def pair_distances(z: np.ndarray, coarse: Coarsening) -> np.ndarray:
     return np.linalg.norm(z[coarse.pairs[:, 0]] - z[coarse.pairs[:, 1]], axis=1)
 
 
-def full_regularizer_value(camera: Camera, z0: np.ndarray, z1: np.ndarray, coarse: Coarsening,
+def full_regularizer_value(camera: Camera, z1: np.ndarray, coarse: Coarsening,
                            z_start: np.ndarray, rest_distances: np.ndarray,
                            lambdas: tuple[float, float, float]) -> dict:
-    """Exact (not linearized) regularizer values of an update ``z0 -> z1`` of the representatives.
+    """Exact (not linearized) ``W_plane`` and ``W_dist`` with representatives at ``z1``.
 
     Returns:
-        ``{"W_pose", "W_plane", "W_dist"}`` in world units squared.
+        ``{"W_plane", "W_dist"}`` in world units squared.
     """
-    lam_pose, lam_plane, lam_dist = lambdas
+    _, lam_plane, lam_dist = lambdas
     m = coarse.masses / coarse.masses.sum()
-    d = z1 - z0
     depth = (z1 - z_start) @ camera.forward
-    out = {"W_pose": lam_pose * float(m @ np.sum(d * d, axis=1)),
-           "W_plane": lam_plane * float(m @ depth**2), "W_dist": 0.0}
+    out = {"W_plane": lam_plane * float(m @ depth**2), "W_dist": 0.0}
     if len(coarse.pairs):
         w = coarse.pair_masses / coarse.pair_masses.sum()
         out["W_dist"] = lam_dist * float(w @ (pair_distances(z1, coarse) - rest_distances) ** 2)

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..exceptions import InputError
-from ..rotations import exp_map
+from ..rotations import exp_map, log_map
 from ..skeleton import Pose
 
 
@@ -128,6 +128,17 @@ class ParameterSpace:
         trans = pose.translations.copy()
         trans[self.translation_bones] += tau
         return RigPose(rot, scales, trans)
+
+    def deviation(self, start: RigPose, pose: RigPose) -> np.ndarray:
+        """Parameters of ``pose`` relative to ``start`` in increment coordinates, ``(P,)``.
+
+        Rotations: ``log(Q_start^T Q)`` (the increment that leads from ``start`` to ``pose``);
+        scales and translations: differences.
+        """
+        rb, sb, tb = self.rotation_bones, self.scale_bones, self.translation_bones
+        rel = np.swapaxes(start.rotations[rb], 1, 2) @ pose.rotations[rb]
+        return np.concatenate([log_map(rel).ravel(), pose.scales[sb] - start.scales[sb],
+                               (pose.translations[tb] - start.translations[tb]).ravel()])
 
     def describe(self, names: tuple[str, ...], column: int) -> str:
         """A readable name of parameter ``column`` (e.g. ``"forearm.L rot y"``)."""

@@ -62,7 +62,7 @@ def _representatives(deformed: np.ndarray, weights: np.ndarray, k: int):
     weighted = np.flatnonzero(weights.sum(axis=1) > 0)
     if weighted.size == 0:
         raise InputError("The character's mesh has no bone weights: skin it to the armature.")
-    coarse = coarsen(deformed[weighted], k=k)
+    coarse = coarsen(deformed[weighted], k=k, weights=weights[weighted])
     return coarse, weighted[coarse.indices]
 
 

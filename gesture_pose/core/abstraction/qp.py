@@ -108,6 +108,22 @@ def inverse_right_jacobian(theta: np.ndarray) -> np.ndarray:
     return np.eye(3) + 0.5 * k + coef * (k @ k)
 
 
+#: Relative weight of the small ridge on the increments (see :func:`parameter_ridge`).
+RIDGE = 1e-6
+
+
+def parameter_ridge(hessian: np.ndarray) -> np.ndarray:
+    """A tiny ridge ``RIDGE * max(diag H) * I`` on the increments, shape ``(P, P)``.
+
+    Parameters that move nothing the energy sees (e.g. finger bones with no representative
+    vertex and no abstraction point) would otherwise get arbitrary increments from solver
+    round-off; the ridge keeps them still without biasing the others.
+    """
+    n = len(hessian)
+    scale = float(np.max(np.diag(hessian))) if n else 0.0
+    return (RIDGE * max(scale, 1e-12)) * np.eye(n)
+
+
 def project_to_limits(pose: RigPose, space: ParameterSpace, limits: StepLimits) -> RigPose:
     """Clamp scales and the limited rotation-vector components of ``pose`` exactly."""
     scales = pose.scales.copy()
@@ -171,23 +187,48 @@ def build_step_qp(model: QuadraticModel, space: ParameterSpace, pose: RigPose,
             upper.append(np.maximum(hi, 0.0))
             labels += [f"limit {names[rb[b]]} {'xyz'[a]}" for b, a in zip(bone, axis,
                                                                             strict=True)]
-    hess = 2.0 * model.hessian + 1e-10 * np.eye(n)
+    hess = 2.0 * (model.hessian + parameter_ridge(model.hessian))
     return StepQP(sparse.csc_matrix(np.triu(hess)), 2.0 * model.gradient,
                   sparse.vstack(rows, format="csc"), np.concatenate(lower),
                   np.concatenate(upper), tuple(labels))
 
 
+def _active(qp: StepQP, x: np.ndarray) -> tuple[str, ...]:
+    """Labels of the non-trust-box rows at a bound for ``x``."""
+    ax = qp.A @ x
+    gap = 1e-6 * np.maximum(1.0, np.abs(ax))
+    at_bound = (ax <= qp.lower + gap) | (ax >= qp.upper - gap)
+    return tuple(lab for lab, a in zip(qp.labels, at_bound, strict=True)
+                 if a and not lab.startswith("step "))
+
+
 def solve_step_qp(qp: StepQP, tolerance: float = 1e-7, max_iter: int = 10000) -> StepSolution:
-    """Solve the update problem with OSQP.
+    """Solve the update problem: directly when no bound is hit, else with OSQP.
+
+    The unconstrained minimizer ``-P^-1 q`` is tried first (a Cholesky solve); when it
+    satisfies every bound it is the QP's solution. Otherwise OSQP solves the problem with
+    ``P`` and ``q`` scaled to unit largest curvature, so its tolerances are relative.
 
     Raises:
         SolverError: OSQP did not solve the problem (status and residuals in ``details``).
     """
     t0 = time.perf_counter()
+    full = qp.P + sparse.triu(qp.P, k=1).T
+    try:
+        x = np.linalg.solve(full.toarray(), -qp.q)
+    except np.linalg.LinAlgError:
+        x = None
+    if x is not None and np.all(np.isfinite(x)):
+        ax = qp.A @ x
+        slack = 1e-12 * np.maximum(1.0, np.abs(ax))
+        if np.all(ax >= qp.lower - slack) and np.all(ax <= qp.upper + slack):
+            return StepSolution(x, 0, "unconstrained", 0.0, 0.0, _active(qp, x),
+                                time.perf_counter() - t0)
+    scale = 1.0 / max(float(qp.P.diagonal().max()), 1e-300)
     solver = osqp.OSQP()
-    solver.setup(qp.P, qp.q, qp.A, np.maximum(qp.lower, -_INF), np.minimum(qp.upper, _INF),
-                 verbose=False, eps_abs=tolerance, eps_rel=tolerance, max_iter=max_iter,
-                 polishing=False)
+    solver.setup(qp.P * scale, qp.q * scale, qp.A, np.maximum(qp.lower, -_INF),
+                 np.minimum(qp.upper, _INF), verbose=False, eps_abs=tolerance,
+                 eps_rel=tolerance, max_iter=max_iter, polishing=False)
     res = solver.solve(raise_error=False)
     status = str(res.info.status)
     details = {"status": status, "iterations": int(res.info.iter),
@@ -195,17 +236,12 @@ def solve_step_qp(qp: StepQP, tolerance: float = 1e-7, max_iter: int = 10000) ->
                "dual_residual": float(res.info.dual_res)}
     if res.x is None or not np.all(np.isfinite(res.x)) or "solved" not in status:
         raise SolverError(f"The bounded update failed (OSQP status '{status}').", details)
-    ax = qp.A @ res.x
-    gap = 1e-6 * np.maximum(1.0, np.abs(ax))
-    at_bound = (ax <= qp.lower + gap) | (ax >= qp.upper - gap)
-    active = tuple(lab for lab, a in zip(qp.labels, at_bound, strict=True)
-                   if a and not lab.startswith("step "))
-    return StepSolution(np.asarray(res.x, float), details["iterations"], status,
-                        details["primal_residual"], details["dual_residual"], active,
-                        time.perf_counter() - t0)
+    x = np.asarray(res.x, float)
+    return StepSolution(x, details["iterations"], status, details["primal_residual"],
+                        details["dual_residual"], _active(qp, x), time.perf_counter() - t0)
 
 
 def solve_step_unbounded(model: QuadraticModel) -> np.ndarray:
     """The paper's unconstrained Gauss-Newton update ``H dp = -g``, shape ``(P,)``."""
-    n = len(model.gradient)
-    return np.linalg.lstsq(model.hessian + 1e-10 * np.eye(n), -model.gradient, rcond=None)[0]
+    return np.linalg.lstsq(model.hessian + parameter_ridge(model.hessian), -model.gradient,
+                           rcond=None)[0]

@@ -42,6 +42,8 @@ from .energies import (
     full_regularizer_value,
     match_term,
     pair_distances,
+    pose_metric,
+    pose_term,
     regularizer_terms,
 )
 from .parameters import ParameterSpace, RigPose
@@ -78,11 +80,12 @@ class SolveOptions:
         bounded: Solve updates as bounded QPs (False: the paper's unbounded update).
         limits: Scale bounds, IK limits and trust box of the bounded update.
         line_search_steps: Step halvings tried when the energy does not decrease.
-        damping_decay: After each accepted update the step term ``W_pose`` (which measures
-            the update itself) is scaled by this factor, down to
-            ``min_damping`` (Levenberg-Marquardt style); a rejected update doubles them back
-            up to the paper's weights. 1 keeps the paper's weights throughout.
-        min_damping: Smallest scale of the step terms.
+        damping_decay: After each iteration the weight of ``W_pose`` is scaled by this
+            factor, down to ``min_damping`` times the paper's weight (a continuation: the
+            early iterations stay near the pose before the drawing, the last ones match the
+            drawing). 1 keeps the paper's weight throughout (a regularized, biased fit).
+        min_damping: Smallest scale of ``W_pose``; the stopping tests (other than the
+            residual tolerance) apply once it is reached.
     """
 
     correspondence: str = IN_ORDER
@@ -98,7 +101,7 @@ class SolveOptions:
     limits: StepLimits = field(default_factory=StepLimits)
     line_search_steps: int = 8
     damping_decay: float = 0.5
-    min_damping: float = 0.05
+    min_damping: float = 1e-4
 
     def lambdas(self, damping: float = 1.0) -> tuple[float, float, float]:
         """``(lambda_pose, lambda_plane, lambda_dist)`` with the step terms scaled."""
@@ -181,12 +184,14 @@ def _rms_px(camera: Camera, x: np.ndarray, corr: Correspondences) -> float:
     return float(np.sqrt(corr.weights @ np.sum(res * res, axis=1)))
 
 
-def _objective(camera: Camera, x: np.ndarray, z_old: np.ndarray, z_new: np.ndarray,
+def _objective(camera: Camera, x: np.ndarray, z_new: np.ndarray,
                corr: Correspondences, coarse: Coarsening, z_start: np.ndarray, rest_d: np.ndarray,
-               lambdas: tuple[float, float, float], ppu: float) -> tuple[float, float]:
+               lambdas: tuple[float, float, float], ppu: float,
+               w_pose: float) -> tuple[float, float]:
+    """True energy (with the current correspondences) and RMS residual in pixels."""
     rms = _rms_px(camera, x, corr)
-    reg = full_regularizer_value(camera, z_old, z_new, coarse, z_start, rest_d, lambdas)
-    return rms**2 / ppu**2 + sum(reg.values()), rms
+    reg = full_regularizer_value(camera, z_new, coarse, z_start, rest_d, lambdas)
+    return rms**2 / ppu**2 + sum(reg.values()) + w_pose, rms
 
 
 def solve_abstraction(problem: AbstractionProblem,
@@ -234,7 +239,10 @@ def solve_abstraction(problem: AbstractionProblem,
         lambdas = opt.lambdas(damping)
         lambdas = (lambdas[0], opt.lambda_plane, lambdas[2])
         hr, gr, er = regularizer_terms(cam, z, jz, coarse, z_start, rest_d, lambdas)
-        model = QuadraticModel(hm + hr, gm + gr, {"E_match": em, **er})
+        metric = pose_metric(jz, coarse)
+        hp, gp, ep = pose_term(metric, space.deviation(problem.start, pose), lambdas[0])
+        model = QuadraticModel(hm + hr + hp, gm + gr + gp,
+                               {"E_match": em, "W_pose": ep, **er})
         energy = model.energy
         if opt.bounded:
             sol = solve_step_qp(build_step_qp(model, space, pose, opt.limits, problem.names))
@@ -248,28 +256,29 @@ def solve_abstraction(problem: AbstractionProblem,
             if opt.bounded:
                 cand = project_to_limits(cand, space, opt.limits)
             xc, zc = rig.evaluate(cand)
-            e_c, rms = _objective(cam, xc, z, zc, corr, coarse, z_start, rest_d,
-                             lambdas, ppu)
+            dev = space.deviation(problem.start, cand)
+            e_c, rms = _objective(cam, xc, zc, corr, coarse, z_start, rest_d, lambdas, ppu,
+                                  float(lambdas[0] * metric @ dev**2))
             if np.isfinite(e_c) and e_c <= energy:
                 accepted = (cand, e_c, rms)
                 break
             alpha *= 0.5
         times.append(time.perf_counter() - t_it)
+        at_floor = damping <= opt.min_damping
+        damping = max(opt.min_damping, damping * opt.damping_decay)
         if accepted is None:
             energies.append(energy)
-            if damping < 1.0:
-                damping = min(1.0, 2.0 * damping)
-                continue
-            converged = True
-            break
+            if at_floor:
+                converged = True
+                break
+            continue
         pose, new_energy, rms = accepted
         residuals.append(rms)
-        if alpha == 1.0:
-            damping = max(opt.min_damping, damping * opt.damping_decay)
         energies.append(new_energy)
-        if energy - new_energy <= opt.tolerance * max(energy, 1e-300) \
-                or alpha * np.abs(dp).max() < 1e-9 or rms < opt.residual_tolerance_px \
-                or _stalled(residuals, opt.stall_iterations):
+        if rms < opt.residual_tolerance_px or (at_floor and (
+                energy - new_energy <= opt.tolerance * max(energy, 1e-300)
+                or alpha * np.abs(dp).max() < 1e-9
+                or _stalled(residuals, opt.stall_iterations))):
             converged = True
             break
     x, _ = rig.evaluate(pose)
