@@ -262,3 +262,111 @@ def run(quick: bool) -> list[tuple[str, list[str], list[list]]]:
     if cmu is not None:
         tables.append(cmu)
     return tables
+
+
+def _render(path: Path) -> np.ndarray:
+    """Render the scene camera with Workbench to ``path``; RGBA pixels ``(h, w, 4)``."""
+    import bpy
+
+    scene = bpy.context.scene
+    scene.render.engine = "BLENDER_WORKBENCH"
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(str(path), check_existing=False)
+    px = np.empty(img.size[0] * img.size[1] * 4, dtype=np.float32)
+    img.pixels.foreach_get(px)
+    shape = (img.size[1], img.size[0], 4)
+    bpy.data.images.remove(img)
+    return px.reshape(shape)
+
+
+def _save_row(images: list[np.ndarray], path: Path) -> None:
+    """Write renders next to each other (white separators) as one PNG."""
+    import bpy
+
+    gap = np.ones((images[0].shape[0], 8, 4), dtype=np.float32)
+    parts = [p for img in images for p in (img, gap)][:-1]
+    row = np.concatenate(parts, axis=1)
+    img = bpy.data.images.new(path.stem, row.shape[1], row.shape[0], alpha=True)
+    img.pixels.foreach_set(row.ravel())
+    img.filepath_raw = str(path)
+    img.file_format = "PNG"
+    img.save()
+    bpy.data.images.remove(img)
+
+
+def pictures(out_dir: Path, pose_name: str = "step") -> list[Path]:
+    """Render the documentation pictures of the 3D step headless (Workbench, 400 px).
+
+    ``gesture3d_before_after.png``: front view of the bind pose under the traced drawing of
+    a known pose, and of the result of the whole Pose. ``gesture3d_depth.png``: side views
+    of the known pose, of the lifting of its exact embedding, and of the whole Pose.
+    """
+    import bpy
+    from mathutils import Vector
+
+    import gesture_pose
+    from gesture_pose.blender.operators.pose_drawing import pose_from_drawing
+    from gesture_pose.blender.read_armature import read_armature
+    from gesture_pose.blender.read_mesh import read_skinned_meshes
+    from gesture_pose.blender.write_pose import apply_pose
+    from gesture_pose.core.gesture.depth import solve_pose3d
+    from gesture_pose.core.gesture.depth.synthetic import project_embedding
+    from gesture_pose.core.gesture.solving import solving_skeleton
+    from gesture_pose.core.gesture.trace import trace_contours
+    from sample_scenes import builders
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    gesture_pose.register()
+    arm, cam = _scene("humanoid", HUMANOID_VIEWS["front"])
+    scene = bpy.context.scene
+    scene.render.resolution_x = scene.render.resolution_y = 400
+    builders.add_light()
+    front = scene.camera
+    side = builders.add_camera(arm, direction=(1.0, 0.0, 0.0), resolution=(400, 400),
+                               name="Side")
+    scene.camera = front
+    bind, truth = _truth(arm, "humanoid", pose_name)
+    meshes = read_skinned_meshes(arm, truth.skeleton)
+    traced = trace_contours(meshes.deformed_vertices, meshes.triangles, cam)
+    toward = -Vector(cam.forward) * 0.5
+    strokes = [p + np.array(toward) for p in traced.world(cam)]
+
+    def shot(camera_obj, name: str) -> np.ndarray:
+        scene.camera = camera_obj
+        bpy.context.view_layer.update()
+        return _render(out_dir / f"_{name}.png")
+
+    truth_side = shot(side, "truth_side")
+    builders.reset_pose(arm)
+    bpy.context.view_layer.update()
+    sketch = builders.add_grease_pencil("Sketch", strokes, radius=0.005)
+    before = shot(front, "before")
+    rep = pose_from_drawing(arm, sketch, cam, insert_keys=False, show_fit=False)
+    sketch.hide_render = False
+    after = shot(front, "after")
+    sketch.hide_render = True
+    whole_side = shot(side, "whole_side")
+    solving = solving_skeleton(bind.skeleton)
+    emb = project_embedding(bind.skeleton, solving, truth.pose, cam, 0.06, "auto")
+    res = solve_pose3d(bind.skeleton, emb, cam, bind.pose)
+    apply_pose(arm, read_armature(arm), res.pose, insert_keys=False)
+    lifted_side = shot(side, "lifted_side")
+    for tmp in out_dir.glob("_*.png"):
+        tmp.unlink()
+    paths = [out_dir / "gesture3d_before_after.png", out_dir / "gesture3d_depth.png"]
+    _save_row([before, after], paths[0])
+    _save_row([truth_side, lifted_side, whole_side], paths[1])
+    print(f"whole Pose {rep.seconds:.1f} s, coverage {rep.embedding.coverage:.2f}")
+    return paths
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    target = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1] \
+        / "docs" / "img"
+    print(*pictures(target), sep="\n")

@@ -32,12 +32,15 @@ def _angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def parallel_pairs(joint_parent: np.ndarray, joints2d: np.ndarray,
                    max_angle: float = np.radians(10.0), ratios: np.ndarray | None = None,
-                   max_ratio_gap: float = 0.2) -> np.ndarray:
+                   max_ratio_gap: float = 0.2, rest_joints: np.ndarray | None = None,
+                   max_rest_angle: float = np.radians(30.0)) -> np.ndarray:
     """Consecutive links drawn in nearly the same direction (and equally foreshortened).
 
     Two links with one 3D direction are foreshortened alike, so a pair whose drawn
-    foreshortening differs by more than ``max_ratio_gap`` (one ``sigma_f``) is not one
-    straight limb but a bend in depth, and is left out.
+    foreshortening differs by more than ``max_ratio_gap`` is not one straight limb but a
+    bend in depth, and is left out; so is a pair bent by more than ``max_rest_angle`` in
+    the bind pose (an ankle drawn straight in a front view is a foot pointing at the
+    viewer, not a straight leg).
 
     Args:
         joint_parent: Parent joint per joint, -1 for roots, shape ``(J,)``.
@@ -45,6 +48,8 @@ def parallel_pairs(joint_parent: np.ndarray, joints2d: np.ndarray,
         max_angle: Largest angle between the drawn directions, radians (paper: 10 deg).
         ratios: Foreshortening of the link ending at each joint, shape ``(J,)`` (optional).
         max_ratio_gap: Largest difference of the two links' foreshortening.
+        rest_joints: Bind-pose joints, shape ``(J, 3)`` (optional).
+        max_rest_angle: Largest bend of the pair in the bind pose, radians.
 
     Returns:
         Joint triples ``(a, b, c)`` with ``a`` parent of ``b`` parent of ``c``, ``(k, 3)``.
@@ -60,6 +65,9 @@ def parallel_pairs(joint_parent: np.ndarray, joints2d: np.ndarray,
     keep = _angle(joints2d[b] - joints2d[a], joints2d[c] - joints2d[b]) <= max_angle
     if ratios is not None:
         keep &= np.abs(ratios[c] - ratios[b]) <= max_ratio_gap
+    if rest_joints is not None:
+        keep &= _angle(rest_joints[b] - rest_joints[a], rest_joints[c] - rest_joints[b]
+                       ) <= max_rest_angle
     return np.stack([a, b, c], axis=1)[keep].reshape(-1, 3)
 
 

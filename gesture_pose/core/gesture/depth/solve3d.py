@@ -54,7 +54,10 @@ class DepthOptions:
         symmetry_angle: Largest mirrored-bone angle for the symmetry post-process, radians;
             0 disables it.
         max_iterations: SQP iteration limit.
-        tolerance: Stop when no joint moves more than this fraction of the mean link length.
+        tolerance: Stop when no joint moves more than this fraction of the mean link length
+            (also the accepted constraint violation, same units).
+        energy_tolerance: Stop when the constraints hold and the drawing energy decreased
+            by less than this fraction in the last step.
         toward_viewer: Default side of a foreshortened bone the drawing does not decide.
         soft_penalty: Slack penalty when the hard constraints contradict each other.
     """
@@ -70,6 +73,7 @@ class DepthOptions:
     symmetry_angle: float = float(np.radians(10.0))
     max_iterations: int = 100
     tolerance: float = 1e-4
+    energy_tolerance: float = 1e-4
     toward_viewer: bool = True
     soft_penalty: float = 1e7
 
@@ -87,7 +91,7 @@ class Pose3DResult:
         e_foreshortening: E_v at the solution (Eq. 7).
         e_spline: Limb-spline energy at the solution.
         iterations: SQP iterations.
-        converged: Whether the step fell under the tolerance.
+        converged: Whether the step or the energy decrease fell under its tolerance.
         active: Labels of the inequality constraints active at the solution.
         ordering: The depth-order constraints used.
         ordering_satisfied: Whether each ordering constraint holds at the solution.
@@ -174,7 +178,8 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
     joint_ratio = np.ones(n_j)
     joint_ratio[b] = ratios
     triples = regularity.parallel_pairs(s.joint_parent, embedding.joints2d,
-                                        opts.parallel_angle, joint_ratio, opts.parallel_ratio_gap)
+                                        opts.parallel_angle, joint_ratio, opts.parallel_ratio_gap,
+                                        X_rest)
     contacts = (regularity.contact_pairs(embedding) if opts.use_contacts
                 else np.zeros((0, 2), int))
     if len(contacts):
@@ -336,13 +341,21 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     warnings: list[str] = []
     mean_len = float(np.mean(setup.lengths)) if len(setup.lengths) else 1.0
     soften, converged, active, qp_time, it = False, False, (), 0.0, 0
+    previous = np.inf
     t2 = time.perf_counter()
     for it in range(1, opts.max_iterations + 1):  # noqa: B007 (reported after the loop)
         X, state = twist.joint_positions(skeleton, jm, current)
+        constraints = setup.all_constraints(X)
+        energy = sum(t.value(X) for t in setup.terms)
+        feasible = all(np.all(c.violation(X) <= opts.tolerance * mean_len)
+                       for c in constraints)
+        if feasible and previous - energy <= opts.energy_tolerance * max(energy, 1e-3):
+            converged = True  # the drawing energy no longer decreases
+            break
+        previous = energy
         G = twist.position_jacobian(jm, X, state)
         dof = _dof_rows(skeleton, jm, current, state.frames[jm.bones], lock_rotation,
                         ik_limits, pinned)
-        constraints = setup.all_constraints(X)
         problem = build_qp(setup.terms, constraints, dof, X.ravel(), G,
                            alpha=opts.alpha, kappa=setup.kappa, soften=soften,
                            rho=opts.soft_penalty)
