@@ -100,7 +100,7 @@ class SolveOptions:
     bounded: bool = True
     limits: StepLimits = field(default_factory=StepLimits)
     line_search_steps: int = 8
-    damping_decay: float = 0.5
+    damping_decay: float = 0.3
     min_damping: float = 1e-4
 
     def lambdas(self, damping: float = 1.0) -> tuple[float, float, float]:
@@ -230,11 +230,15 @@ def solve_abstraction(problem: AbstractionProblem,
     energies, times, residuals = [], [], []
     qp_iters, active, converged, warnings = 0, (), False, []
     it, damping = 0, 1.0
+    best = (np.inf, pose)
     while it < opt.max_iterations:
         it += 1
         t_it = time.perf_counter()
         x, z, jx, jz = rig.jacobians(pose)
         corr = build_correspondences(cam.project(x), layout, strokes, pairs, opt.correspondence)
+        now = _rms_px(cam, x, corr)
+        if now < best[0]:
+            best = (now, pose)
         hm, gm, em = match_term(cam, x, jx, corr, ppu)
         lambdas = opt.lambdas(damping)
         lambdas = (lambdas[0], opt.lambda_plane, lambdas[2])
@@ -283,6 +287,11 @@ def solve_abstraction(problem: AbstractionProblem,
             break
     x, _ = rig.evaluate(pose)
     final = build_correspondences(cam.project(x), layout, strokes, pairs, opt.correspondence)
+    if best[0] < _rms_px(cam, x, final):  # ICP can drift once correspondences slide
+        pose = best[1]
+        x, _ = rig.evaluate(pose)
+        final = build_correspondences(cam.project(x), layout, strokes, pairs,
+                                      opt.correspondence)
     if len(strokes) > layout.n_curves:
         warnings.append(f"{len(strokes) - layout.n_curves} stroke(s) had no curve to match.")
     if not converged:
