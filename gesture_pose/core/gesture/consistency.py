@@ -127,26 +127,31 @@ def _overlaps(problem: MatchProblem, left: list[np.ndarray], right: list[np.ndar
     return out
 
 
-def overlap_joints(problem: MatchProblem, overlaps: list[tuple[int, int]]) -> np.ndarray:
-    """Terminal joints below the bones or joints involved in overlaps, ``(k,)`` int."""
+def block_overlaps(problem: MatchProblem, assign: Assignment) -> np.ndarray:
+    """Samples each bone may no longer claim, resolving the overlaps of ``assign``.
+
+    Of two overlapping bones (or joints) the later one in the skeleton yields: it may not
+    use the samples of the other, so the next solve moves it to other contours.
+
+    Returns:
+        Blocked samples per solving bone, ``(m, N)`` bool.
+    """
     s = problem.solving
-    involved = set()
-    for pair in overlaps:
-        for x in pair:
-            if x >= 0:
-                involved.update((int(s.head_joint[x]), int(s.tail_joint[x])))
-            else:
-                involved.add(-1 - x)
-    terminals = np.flatnonzero(problem.terminal)
-    out = []
-    for t in terminals:
-        j = t
-        while j >= 0:
-            if j in involved:
-                out.append(int(t))
-                break
-            j = s.joint_parent[j]
-    return np.array(sorted(set(out)), dtype=int)
+    blocked = np.zeros((s.n_bones, problem.drawing.n_samples), dtype=bool)
+
+    def claim(x: int) -> tuple[int, np.ndarray]:
+        if x >= 0:
+            return x, np.concatenate([assign.bone_left[x], assign.bone_right[x]])
+        j = -1 - x
+        link = s.joint_link_bone[j]
+        bone = link if link >= 0 else int(np.flatnonzero(s.head_joint == j)[0])
+        return bone, assign.joint_samples[j]
+
+    for a, b in assign.overlaps:
+        (bone_a, samples_a), (bone_b, samples_b) = claim(a), claim(b)
+        loser, winner_samples = (bone_b, samples_a) if bone_b >= bone_a else (bone_a, samples_b)
+        blocked[loser, winner_samples] = True
+    return blocked
 
 
 def symmetric_limbs(problem: MatchProblem) -> list[np.ndarray]:

@@ -8,7 +8,8 @@ continuous refinement (moved joints) share them.
   within ``alpha = 15`` degrees. ``C = 1 - f / f_ref`` with ``f`` the aligned fraction and
   ``f_ref`` the fraction an ideal fit reaches (two tangent arcs of ``2 alpha`` for a joint
   inside a limb, a half circle plus those arcs for a terminal joint). Terminal joints need
-  ``f >= 15%``; circles that a contour cuts through are unreliable; both cost 1.
+  ``f >= 15%`` (else cost 1). Lines crossing a joint's circle are allowed: traced and drawn
+  figures have interior lines at joints (a hand over a hip, a junction of parts).
 - Pairwise ``E(i, j) = 1 - (1 - Cl)(1 - Ccf)(1 - Wc Cc)`` per bone with the length term
   ``Cl`` (Eq. 2, ``sigma`` = 4% of the diagonal, ``sigma / 3`` when the drawn bone is
   longer than the bone), contour conformity ``Ccf`` and consistency ``Cc``, ``Wc = 0.9``.
@@ -38,7 +39,8 @@ class CostParams:
         sigma_angle_shared: ``sigma_a`` when the three joints share a contour, radians.
         sigma_angle: ``sigma_a`` otherwise, radians.
         conform_angle: Largest angle between a conforming contour sample and its bone.
-        rigid_sigma: Length sigma of rigid offsets (unconnected heads), fraction of diagonal.
+        rigid_sigma: Sigma of rigid offsets (unconnected heads), fraction of the diagonal.
+        w_direction: Weight of the direction prior (see :func:`direction_cost`).
     """
 
     alpha: float = np.radians(15.0)
@@ -49,12 +51,17 @@ class CostParams:
     sigma_angle_shared: float = np.pi / 3
     sigma_angle: float = np.pi / 6
     conform_angle: float = np.radians(30.0)
-    rigid_sigma: float = 0.02
+    rigid_sigma: float = 0.03
+    w_direction: float = 0.5
 
 
 def circle_alignment(drawing: Drawing, centres: np.ndarray, radii: np.ndarray,
-                     params: CostParams = CostParams()) -> np.ndarray:
+                     params: CostParams | None = None) -> np.ndarray:
     """Aligned contour sample of every circle sample, or -1.
+
+    A circle sample is aligned when the contours pass within ``min(epsilon, r / 2)`` of it
+    (read from the drawing's distance field) and the nearest contour sample's normal is
+    within ``alpha`` of the circle's normal.
 
     Args:
         drawing: The preprocessed drawing.
@@ -65,6 +72,7 @@ def circle_alignment(drawing: Drawing, centres: np.ndarray, radii: np.ndarray,
     Returns:
         Sample indices, shape ``(K, M)`` int, -1 where nothing aligns.
     """
+    params = params or CostParams()
     m = params.circle_samples
     ang = np.linspace(0.0, 2 * np.pi, m, endpoint=False)
     u = np.stack([np.cos(ang), np.sin(ang)], axis=1)
@@ -72,21 +80,14 @@ def circle_alignment(drawing: Drawing, centres: np.ndarray, radii: np.ndarray,
     radii = np.broadcast_to(np.asarray(radii, float), (len(centres),))
     tol = np.minimum(drawing.epsilon, radii / 2.0)
     q = centres[:, None, :] + radii[:, None, None] * u[None]
-    dist, idx = drawing.tree.query(q.reshape(-1, 2), k=3, distance_upper_bound=float(tol.max()))
-    dist = dist.reshape(len(centres), m, 3)
-    idx = idx.reshape(len(centres), m, 3)
-    found = dist <= tol[:, None, None]
-    safe = np.where(found, idx, 0)
-    cos = np.abs(np.einsum("kmsd,md->kms", drawing.normals[safe], u))
-    ok = found & (cos > np.cos(params.alpha))
-    first = np.argmax(ok, axis=2)
-    hit = ok.any(axis=2)
-    chosen = np.take_along_axis(safe, first[..., None], axis=2)[..., 0]
-    return np.where(hit, chosen, -1)
+    dist, owner = drawing.lookup(q)
+    cos = np.abs(np.einsum("kmd,md->km", drawing.normals[owner], u))
+    ok = (dist <= tol[:, None]) & (cos > np.cos(params.alpha))
+    return np.where(ok, owner, -1)
 
 
 def unary_cost(drawing: Drawing, centres: np.ndarray, radii: np.ndarray, terminal: bool,
-               params: CostParams = CostParams()) -> tuple[np.ndarray, np.ndarray]:
+               params: CostParams | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Unary cost ``C(i, P)`` of circles (see the module docstring).
 
     Args:
@@ -99,17 +100,32 @@ def unary_cost(drawing: Drawing, centres: np.ndarray, radii: np.ndarray, termina
     Returns:
         ``(cost (K,), aligned (K, M))`` with ``aligned`` from :func:`circle_alignment`.
     """
+    params = params or CostParams()
     aligned = circle_alignment(drawing, centres, radii, params)
-    frac = (aligned >= 0).mean(axis=1)
+    return unary_from_aligned(aligned, terminal, params), aligned
+
+
+def unary_from_aligned(aligned: np.ndarray, terminal: bool, params: CostParams | None = None,
+                       blocked: np.ndarray | None = None) -> np.ndarray:
+    """Unary cost from the aligned samples of circles, ``(K, M) -> (K,)``.
+
+    Args:
+        aligned: Aligned contour sample per circle sample or -1, ``(K, M)``.
+        terminal: Whether the joint is terminal.
+        params: Cost parameters.
+        blocked: Contour samples this joint may not use (claimed by another part), ``(N,)``.
+    """
+    params = params or CostParams()
+    ok = aligned >= 0
+    if blocked is not None:
+        ok &= ~blocked[np.maximum(aligned, 0)]
+    frac = ok.mean(axis=1)
     a = params.alpha
     f_ref = (np.pi + 2 * a) / (2 * np.pi) if terminal else 2 * a / np.pi
     cost = 1.0 - np.clip(frac / f_ref, 0.0, 1.0)
     if terminal:
         cost = np.where(frac < params.terminal_min_fraction, 1.0, cost)
-    radii = np.broadcast_to(np.asarray(radii, float), (len(cost),))
-    nearest = drawing.tree.query(np.asarray(centres, float).reshape(-1, 2), k=1)[0]
-    cut = nearest < radii - np.minimum(drawing.epsilon, radii / 2.0)
-    return np.where(cut, 1.0, cost), aligned
+    return cost
 
 
 def length_cost(dist: np.ndarray, length: float, sigma: float) -> np.ndarray:
@@ -124,12 +140,73 @@ def length_cost(dist: np.ndarray, length: float, sigma: float) -> np.ndarray:
     return 1.0 - np.exp(-((dist - length) ** 2) / (2.0 * s**2))
 
 
-def _local_samples(drawing: Drawing, pa: np.ndarray, pb: np.ndarray, reach: float) -> np.ndarray:
-    """Indices of contour samples within ``reach`` of the box around all endpoints."""
-    lo = np.minimum(pa.min(axis=0), pb.min(axis=0)) - reach
-    hi = np.maximum(pa.max(axis=0), pb.max(axis=0)) + reach
-    inside = np.all((drawing.points >= lo) & (drawing.points <= hi), axis=1)
-    return np.flatnonzero(inside)
+def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
+              sa: np.ndarray, pb: np.ndarray, rb: np.ndarray, gb: np.ndarray, sb: np.ndarray,
+              length: float, params: CostParams | None = None,
+              stations: int = 8, blocked: np.ndarray | None = None) -> np.ndarray:
+    """Pairwise bone cost ``E(i, j) = 1 - (1 - Cl)(1 - Ccf)(1 - Wc Cc)``.
+
+    ``Ccf`` samples the bone's two outlines (offset by the interpolated joint radius) at
+    ``stations`` positions; a station conforms when a contour runs there (within
+    ``max(epsilon, r / 2)``) along the bone (within ``conform_angle``), and
+    ``Ccf = 1 - (left + right) / 2`` with the conforming fractions per side. ``Cc`` is 1 when
+    the bone's axis crosses a contour its end joints come from, or when both end joints
+    come from the same contour but lie on opposite sides of it.
+
+    Args:
+        drawing: The preprocessed drawing.
+        pa: Head joint positions, pixels, ``(Ka, 2)``.
+        ra: Their radii, pixels, ``(Ka,)``.
+        ga: Contour of their originating samples (-1 for grid), ``(Ka,)``.
+        sa: Side of their originating contour (+1, -1, 0 grid), ``(Ka,)``.
+        pb: Tail joint positions, pixels, ``(Kb, 2)``.
+        rb: Their radii, pixels, ``(Kb,)``.
+        gb: Contour of their originating samples, ``(Kb,)``.
+        sb: Side of their originating contour, ``(Kb,)``.
+        length: Expected drawn length (bind length times the view scale), pixels.
+        params: Cost parameters.
+        stations: Samples along the bone per outline.
+        blocked: Contour samples claimed by other body parts, which do not count for this
+            bone's conformity (the non-overlap constraint), ``(N,)`` bool.
+
+    Returns:
+        Costs, shape ``(Ka, Kb)``.
+    """
+    params = params or CostParams()
+    pa, pb = np.asarray(pa, float).reshape(-1, 2), np.asarray(pb, float).reshape(-1, 2)
+    ra = np.broadcast_to(np.asarray(ra, float), (len(pa),))
+    rb = np.broadcast_to(np.asarray(rb, float), (len(pb),))
+    eps = drawing.epsilon
+    d = pb[None, :, :] - pa[:, None, :]
+    dist = np.linalg.norm(d, axis=2)
+    u = d / np.maximum(dist, 1e-9)[..., None]
+    perp = np.stack([-u[..., 1], u[..., 0]], axis=-1)
+    cl = length_cost(dist, length, params.sigma_length * drawing.diagonal)
+    t = (np.arange(stations) + 0.5) / stations
+    axis = pa[:, None, None, :] + t[None, None, :, None] * d[:, :, None, :]
+    r_t = (1.0 - t)[None, None, :] * ra[:, None, None] + t[None, None, :] * rb[None, :, None]
+    tol = np.maximum(eps, 0.5 * r_t)
+    sin_max = np.sin(params.conform_angle)
+    cover = []
+    for sign in (1.0, -1.0):
+        q = axis + sign * r_t[..., None] * perp[:, :, None, :]
+        dq, owner = drawing.lookup(q)
+        along = np.abs(np.einsum("abtd,abd->abt", drawing.normals[owner], u))
+        ok = (dq <= tol) & (along < sin_max)
+        if blocked is not None:
+            ok &= ~blocked[owner]
+        cover.append(ok.mean(axis=2))
+    ccf = 1.0 - 0.5 * (cover[0] + cover[1])
+    ta = np.linspace(0.1, 0.9, 9)
+    q = pa[:, None, None, :] + ta[None, None, :, None] * d[:, :, None, :]
+    dq, owner = drawing.lookup(q)
+    grp = drawing.group[owner]
+    own = (grp == ga[:, None, None]) | (grp == gb[None, :, None])
+    cc = ((dq < 0.5 * eps) & own).any(axis=2).astype(float)
+    same = (ga[:, None] == gb[None, :]) & (ga[:, None] >= 0)
+    opposite = same & (sa[:, None] * sb[None, :] < 0)
+    cc = np.maximum(cc, opposite.astype(float))
+    return 1.0 - (1.0 - cl) * (1.0 - ccf) * (1.0 - params.w_consistency * cc)
 
 
 def bone_frame(drawing: Drawing, pa: np.ndarray, pb: np.ndarray, idx: np.ndarray):
@@ -148,69 +225,58 @@ def bone_frame(drawing: Drawing, pa: np.ndarray, pb: np.ndarray, idx: np.ndarray
     return t, h, dist, u
 
 
-def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
-              sa: np.ndarray, pb: np.ndarray, rb: np.ndarray, gb: np.ndarray, sb: np.ndarray,
-              length: float, params: CostParams = CostParams()) -> np.ndarray:
-    """Pairwise bone cost ``E(i, j) = 1 - (1 - Cl)(1 - Ccf)(1 - Wc Cc)``.
+def rigid_cost(drawing: Drawing, pa: np.ndarray, pb: np.ndarray, offset: np.ndarray,
+               params: CostParams | None = None) -> np.ndarray:
+    """Cost of a rigid offset link (an unconnected head such as a hip), ``(Ka, Kb)``.
+
+    The drawn offset ``pb - pa`` is compared with the offset seen in the view at the
+    character's current pose (a 2D rigid prior: hips and shoulders keep their layout).
 
     Args:
         drawing: The preprocessed drawing.
-        pa: Head joint positions, pixels, ``(Ka, 2)``.
-        ra: Their radii, pixels, ``(Ka,)``.
-        ga: Contour of their originating samples (-1 for grid), ``(Ka,)``.
-        sa: Side of their originating contour (+1, -1, 0 grid), ``(Ka,)``.
-        pb: Tail joint positions, pixels, ``(Kb, 2)``.
-        rb: Their radii, pixels, ``(Kb,)``.
-        gb: Contour of their originating samples, ``(Kb,)``.
-        sb: Side of their originating contour, ``(Kb,)``.
-        length: Expected drawn length (bind length times the view scale), pixels.
+        pa: Parent joint positions, pixels, ``(Ka, 2)``.
+        pb: Joint positions, pixels, ``(Kb, 2)``.
+        offset: Expected offset, pixels, ``(2,)``.
+        params: Cost parameters.
+    """
+    params = params or CostParams()
+    diff = np.asarray(pb, float)[None] - np.asarray(pa, float)[:, None] - offset
+    sigma = params.rigid_sigma * drawing.diagonal
+    return 1.0 - np.exp(-np.einsum("abd,abd->ab", diff, diff) / (2.0 * sigma**2))
+
+
+def direction_cost(pa: np.ndarray, pb: np.ndarray, reference: np.ndarray,
+                   params: CostParams | None = None) -> np.ndarray:
+    """Weak prior keeping a bone's drawn direction near its direction in the view.
+
+    ``w_direction (1 - cos theta) / 2`` with ``theta`` the angle between the drawn bone
+    and the bone at the character's current pose seen in the same view. Not part of the
+    paper: it breaks the ties of the matching energy between symmetric or reversed
+    placements (a leg drawn in the arm's place) that the paper resolves by enumeration.
+
+    Args:
+        pa: Head positions, pixels, ``(Ka, 2)``.
+        pb: Tail positions, pixels, ``(Kb, 2)``.
+        reference: The bone's offset in the view, pixels, ``(2,)``.
         params: Cost parameters.
 
     Returns:
         Costs, shape ``(Ka, Kb)``.
     """
-    pa, pb = np.asarray(pa, float).reshape(-1, 2), np.asarray(pb, float).reshape(-1, 2)
-    eps = drawing.epsilon
-    reach = 1.5 * max(float(np.max(ra)), float(np.max(rb))) + eps
-    idx = _local_samples(drawing, pa, pb, reach)
-    dist = np.linalg.norm(pb[None] - pa[:, None], axis=2)
-    cl = length_cost(dist, length, params.sigma_length * drawing.diagonal)
-    if idx.size == 0:
-        ccf = np.ones_like(dist)
-        cc = np.zeros_like(dist)
-    else:
-        t, h, dist, u = bone_frame(drawing, pa, pb, idx)
-        r_t = (1.0 - t) * ra[:, None, None] + t * rb[None, :, None]
-        along = np.abs(np.einsum("nd,abd->abn", drawing.normals[idx], u))
-        conform = ((t >= 0) & (t <= 1) & (np.abs(np.abs(h) - r_t) < np.maximum(eps, 0.5 * r_t))
-                   & (along < np.sin(params.conform_angle)))
-        need = np.maximum(dist / eps, 1.0)
-        left = np.minimum((conform & (h > 0)).sum(axis=2) / need, 1.0)
-        right = np.minimum((conform & (h < 0)).sum(axis=2) / need, 1.0)
-        ccf = 1.0 - 0.5 * (left + right)
-        grp = drawing.group[idx]
-        own = (grp[None, None, :] == ga[:, None, None]) | (grp[None, None, :] == gb[None, :, None])
-        cross = (t > 0.05) & (t < 0.95) & (np.abs(h) < 0.5 * eps) & own
-        cc = cross.any(axis=2).astype(float)
-    same = (ga[:, None] == gb[None, :]) & (ga[:, None] >= 0)
-    opposite = same & (sa[:, None] * sb[None, :] < 0)
-    cc = np.maximum(cc, opposite.astype(float))
-    return 1.0 - (1.0 - cl) * (1.0 - ccf) * (1.0 - params.w_consistency * cc)
-
-
-def rigid_cost(drawing: Drawing, pa: np.ndarray, pb: np.ndarray, length: float,
-               params: CostParams = CostParams()) -> np.ndarray:
-    """Cost of a rigid offset link (an unconnected head): its length term only, ``(Ka, Kb)``."""
-    dist = np.linalg.norm(np.asarray(pb, float)[None] - np.asarray(pa, float)[:, None], axis=2)
-    sigma = params.rigid_sigma * drawing.diagonal
-    return 1.0 - np.exp(-((dist - length) ** 2) / (2.0 * sigma**2))
+    params = params or CostParams()
+    d = np.asarray(pb, float)[None] - np.asarray(pa, float)[:, None]
+    ref = np.asarray(reference, float)
+    norm = np.linalg.norm(d, axis=2) * max(float(np.linalg.norm(ref)), 1e-9)
+    cos = np.where(norm > 1e-9, d @ ref / np.maximum(norm, 1e-9), 1.0)
+    return params.w_direction * 0.5 * (1.0 - cos)
 
 
 def triplet_cost(pa: np.ndarray, pb: np.ndarray, pc: np.ndarray, shared: np.ndarray,
-                 rest_angle: float, params: CostParams = CostParams()) -> np.ndarray:
+                 rest_angle: float, params: CostParams | None = None) -> np.ndarray:
     """Naturalness ``Cn`` of consecutive bones ``a -> b -> c``, shape ``(Ka, Kb, Kc)``.
 
-    The turning angle at ``b`` is compared with the bind pose's angle between the bones;
+    The turning angle at ``b`` is compared with the angle between the bones in the view at
+    the character's current pose;
     ``sigma_a`` is wider where the three joints come from the same contour (``shared``).
 
     Args:
@@ -218,9 +284,10 @@ def triplet_cost(pa: np.ndarray, pb: np.ndarray, pc: np.ndarray, shared: np.ndar
         pb: Middle joint positions, pixels, ``(Kb, 2)``.
         pc: Last joint positions, pixels, ``(Kc, 2)``.
         shared: Whether the three joints share an originating contour, ``(Ka, Kb, Kc)``.
-        rest_angle: Angle between the two bones in the bind pose, radians.
+        rest_angle: Angle between the two bones in the view at the current pose, radians.
         params: Cost parameters.
     """
+    params = params or CostParams()
     d1 = pb[None, :, :] - pa[:, None, :]
     d2 = pc[None, :, :] - pb[:, None, :]
     n1 = np.linalg.norm(d1, axis=2)

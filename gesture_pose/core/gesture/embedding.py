@@ -9,7 +9,7 @@ symmetric permutations, and the 2D refinement.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -17,9 +17,9 @@ from ..camera import Camera
 from ..exceptions import InputError
 from ..skeleton import Pose, Skeleton
 from ..stroke import Stroke
-from .candidates import JointCandidates, contour_candidates, grid_candidates
-from .consistency import assign_contours, overlap_joints, permute, symmetric_limbs, twist_score
-from .costs import CostParams
+from .candidates import JointCandidates, best, consolidate, contour_candidates, grid_candidates
+from .consistency import assign_contours, block_overlaps, permute, symmetric_limbs, twist_score
+from .costs import CostParams, unary_cost
 from .mrf import build_energy, configuration, joint_energy, make_problem, solve_tree
 from .preprocess import PreprocessParams, preprocess
 from .radii import discrete_radii, joint_radii
@@ -37,9 +37,13 @@ class GestureParams:
         costs: Cost parameters.
         refine: Refinement parameters.
         min_bone_epsilons: Shortest solving bone, in resampling steps.
-        max_candidates: Contour candidates kept per joint.
-        coarse_grid: Grid points of the first (coarse) occlusion grid.
-        fine_grid_reach: Half-width of the fine grid around the first answer, epsilons.
+        max_candidates: Contour candidates per joint in the fine pass.
+        pool_candidates: Contour candidates per joint kept after consolidation.
+        coarse_candidates: Contour candidates per joint in the coarse pass.
+        coarse_cell: Consolidation cell of the coarse pass, epsilons.
+        coarse_grid: Grid points of the coarse occlusion grid.
+        fine_reach: Radius around the coarse answer searched by the fine pass, epsilons.
+        fine_grid_reach: Half-width of the fine grid around the coarse answer, epsilons.
         max_radii: Most candidate radii per joint.
         min_coverage: Coverage the consistency step requires.
         overlap_penalty: Penalty per overlapping pair of bones or joints.
@@ -51,14 +55,18 @@ class GestureParams:
     preprocess: PreprocessParams = field(default_factory=PreprocessParams)
     costs: CostParams = field(default_factory=CostParams)
     refine: RefineParams = field(default_factory=RefineParams)
-    min_bone_epsilons: float = 2.0
-    max_candidates: int = 48
+    min_bone_epsilons: float = 1.5
+    max_candidates: int = 40
+    pool_candidates: int = 400
+    coarse_candidates: int = 120
+    coarse_cell: float = 1.5
     coarse_grid: int = 40
+    fine_reach: float = 3.0
     fine_grid_reach: float = 2.0
     max_radii: int = 3
     min_coverage: float = 0.85
     overlap_penalty: float = 10.0
-    max_terminal_rounds: int = 6
+    max_terminal_rounds: int = 3
     symmetric_tolerance: float = 0.5
     min_drawing_ratio: float = 0.25
 
@@ -73,12 +81,88 @@ def posed_joints(solving: SolvingSkeleton, skeleton: Skeleton, pose: Pose) -> np
     return out
 
 
-def _solve(problem, cands: list[JointCandidates], penalty: dict[int, np.ndarray]):
-    """Run the DP with extra unary penalties; return labels, energy."""
-    cands = [c if j not in penalty else JointCandidates(
-        c.positions, c.radii, c.side, c.origin, c.group, c.unary + penalty[j], c.aligned)
-        for j, c in enumerate(cands)]
-    return solve_tree(build_energy(problem, cands))
+def _penalized(cands: JointCandidates, zones: list[np.ndarray], radius: float,
+               penalty: float) -> JointCandidates:
+    """Candidates with ``penalty`` added near forbidden positions ``zones`` (each (2,))."""
+    if not zones:
+        return cands
+    z = np.stack(zones)
+    near = (np.linalg.norm(cands.positions[:, None] - z[None], axis=2) < radius).any(axis=1)
+    return JointCandidates(cands.positions, cands.radii, cands.side, cands.origin, cands.group,
+                           cands.unary + penalty * near, cands.aligned)
+
+
+def _near(cands: JointCandidates, centre: np.ndarray, reach: float, count: int
+          ) -> JointCandidates:
+    """The ``count`` cheapest candidates within ``reach`` of ``centre``."""
+    sel = np.flatnonzero(np.linalg.norm(cands.positions - centre, axis=1) <= reach)
+    return best(cands.take(sel), count)
+
+
+def _two_pass(problem, contour: list[JointCandidates], mid_r: np.ndarray, params,
+              zones: dict[int, list[np.ndarray]]) -> tuple[list[JointCandidates], np.ndarray,
+                                                           float]:
+    """Coarse DP (many candidates, pairwise factors) then fine DP with triplets.
+
+    Returns:
+        ``(fine candidate sets, labels, energy)``.
+    """
+    d = problem.drawing
+    eps = d.epsilon
+    area = float(np.prod(np.maximum(d.bbox[1] - d.bbox[0], eps)))
+    spacing = max(eps, np.sqrt(area / params.coarse_grid))
+    pen = params.overlap_penalty
+    coarse = []
+    for j, c in enumerate(contour):
+        pool = best(consolidate(c, params.coarse_cell * eps), params.coarse_candidates)
+        grid = grid_candidates(d, spacing, mid_r[j], params=params.costs)
+        coarse.append(_penalized(JointCandidates.concat([pool, grid]), zones.get(j, []),
+                                 2 * eps, pen))
+    coarse = _with_rigid(problem, coarse, zones, pen)
+    # Coarse candidates are up to a cell off: widen the length tolerances accordingly.
+    slack = params.coarse_cell * eps / d.diagonal
+    loose = replace(problem.params,
+                    sigma_length=float(np.hypot(problem.params.sigma_length, 2 * slack)),
+                    rigid_sigma=float(np.hypot(problem.params.rigid_sigma, 2 * slack)))
+    labels, _ = solve_tree(build_energy(replace(problem, params=loose), coarse,
+                                        triplets=False))
+    first = configuration(coarse, labels)
+    reach = params.fine_grid_reach * eps
+    fine = []
+    for j, c in enumerate(contour):
+        near = _near(c, first.positions[j], params.fine_reach * eps, params.max_candidates)
+        grid = grid_candidates(d, eps, mid_r[j], first.positions[j], reach, params.costs)
+        fine.append(_penalized(JointCandidates.concat([near, grid]), zones.get(j, []),
+                               2 * eps, pen))
+    fine = _with_rigid(problem, fine, zones, pen)
+    labels, energy = solve_tree(build_energy(problem, fine))
+    return fine, labels, energy
+
+
+def _with_rigid(problem, cands: list[JointCandidates], zones, pen: float
+                ) -> list[JointCandidates]:
+    """Add to every rigidly attached joint its parent's candidates moved by the offset.
+
+    A hip or shoulder head sits at a fixed offset from the pelvis or chest; deriving its
+    candidates from the parent's keeps the exact rigid placement available to the MRF.
+    """
+    s, d = problem.solving, problem.drawing
+    out = list(cands)
+    for j in range(s.n_joints):
+        p = s.joint_parent[j]
+        if p < 0 or s.joint_link_bone[j] >= 0:
+            continue
+        moved = out[p].positions + problem.link_offset[j]
+        r = np.full(len(moved), float(np.median(cands[j].radii)))
+        _, aligned = unary_cost(d, moved, r, bool(problem.terminal[j]), problem.params)
+        # Placed by rigidity, not by the contours: no unary cost.
+        cost = np.zeros(len(moved))
+        side = np.zeros(len(moved), int)
+        shifted = JointCandidates(moved, r, side, -np.ones(len(moved), int),
+                                  -np.ones(len(moved), int), cost, aligned)
+        out[j] = JointCandidates.concat([cands[j], _penalized(shifted, zones.get(j, []),
+                                                              2 * d.epsilon, pen)])
+    return out
 
 
 def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices: np.ndarray,
@@ -124,65 +208,55 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
 
     t0 = time.perf_counter()
     r_min, r_max = joint_radii(solving, skeleton, vertices, weights)
-    problem = make_problem(drawing, solving, ppu, params.costs)
+    problem = make_problem(drawing, solving, ppu, reference, params.costs)
     eps = drawing.epsilon
     terminal = problem.terminal
     contour = [contour_candidates(drawing, discrete_radii(r_min[j] * ppu, r_max[j] * ppu, eps,
                                                           params.max_radii),
-                                  bool(terminal[j]), params.costs, params.max_candidates)
+                                  bool(terminal[j]), params.costs, params.pool_candidates)
                for j in range(solving.n_joints)]
     mid_r = 0.5 * (r_min + r_max) * ppu
-    area = float(np.prod(np.maximum(drawing.bbox[1] - drawing.bbox[0], eps)))
-    spacing = max(eps, np.sqrt(area / params.coarse_grid))
-    cands = [JointCandidates.concat([c, grid_candidates(drawing, spacing, mid_r[j],
-                                                        params=params.costs)])
-             for j, c in enumerate(contour)]
     timings["candidates"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    labels, _ = solve_tree(build_energy(problem, cands))
-    first = configuration(cands, labels)
-    reach = params.fine_grid_reach * eps
-    cands = [JointCandidates.concat([c, grid_candidates(drawing, eps, mid_r[j],
-                                                        first.positions[j], reach,
-                                                        params.costs)])
-             for j, c in enumerate(contour)]
-    labels, energy = solve_tree(build_energy(problem, cands))
+    zones: dict[int, list[np.ndarray]] = {}
+    cands, labels, energy = _two_pass(problem, contour, mid_r, params, zones)
     timings["mrf"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     conf, rounds = configuration(cands, labels), 0
-    best = None
-    penalty: dict[int, np.ndarray] = {}
+    base = problem
+    blocked = np.zeros((solving.n_bones, drawing.n_samples), dtype=bool)
+    best_sol = None
     for rounds in range(params.max_terminal_rounds + 1):
-        assign = assign_contours(problem, conf)
+        assign = assign_contours(base, conf)
         n_bad = len(assign.overlaps)
         score = energy + params.overlap_penalty * n_bad
-        if best is None or (n_bad, score) < (best[0], best[1]):
-            best = (n_bad, score, conf, assign)
+        key = (n_bad, -round(assign.coverage, 2), score)
+        if best_sol is None or key < best_sol[0]:
+            best_sol = (key, conf, problem)
         if n_bad == 0 and assign.coverage >= params.min_coverage:
             break
-        culprits = overlap_joints(problem, assign.overlaps) if n_bad else np.flatnonzero(
-            terminal & (conf.unary > 0.5))
-        if culprits.size == 0 or rounds == params.max_terminal_rounds:
+        if n_bad == 0 or rounds == params.max_terminal_rounds:
             break
-        for j in culprits:
-            pen = penalty.setdefault(int(j), np.zeros(len(cands[j])))
-            pen[labels[j]] += params.overlap_penalty
-        labels, energy = _solve(problem, cands, penalty)
+        blocked |= block_overlaps(base, assign)
+        problem = replace(base, blocked=blocked.copy())
+        cands, labels, energy = _two_pass(problem, contour, mid_r, params, {})
         conf = configuration(cands, labels)
-    n_bad, _, conf, assign = best
+    (n_bad, _, _), conf, problem = best_sol
     if n_bad:
         warnings.append(f"{n_bad} pairs of body parts claim the same contour.")
     limbs = symmetric_limbs(problem)
     options = []
     for mask in range(2 ** len(limbs)):
         perm = permute(conf, limbs, mask)
-        e = joint_energy(problem, perm)[0]
+        e = joint_energy(base, perm)[0]
         options.append((e, twist_score(problem, perm.positions, reference), mask, perm))
     e_min = min(o[0] for o in options)
     close = [o for o in options if o[0] <= e_min + params.symmetric_tolerance]
     _, _, mask, conf = min(close, key=lambda o: (o[1], o[0], o[2]))
+    if mask:
+        problem = base
     timings["consistency"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()

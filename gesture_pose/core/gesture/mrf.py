@@ -27,7 +27,15 @@ import numpy as np
 
 from ..exceptions import InputError
 from .candidates import JointCandidates
-from .costs import CostParams, pair_cost, rigid_cost, triplet_cost, unary_cost
+from .costs import (
+    CostParams,
+    direction_cost,
+    pair_cost,
+    rigid_cost,
+    triplet_cost,
+    unary_cost,
+    unary_from_aligned,
+)
 from .preprocess import Drawing
 from .types import SolvingSkeleton
 
@@ -137,10 +145,14 @@ class MatchProblem:
         solving: The solving skeleton.
         link_length: Expected drawn length of each joint's link to its parent (bone length
             or rigid offset times the view scale), pixels, ``(J,)``; 0 for roots.
-        rest_angle: Bind-pose angle between a joint's link and its parent's link, radians,
-            ``(J,)``; NaN where there is no triplet.
+        rest_angle: Angle between a joint's link and its parent's link in the view at the
+            current pose, radians, ``(J,)``; NaN where there is no triplet.
         terminal: Terminal joints, ``(J,)`` bool.
         params: Cost parameters.
+        link_offset: Offset of each joint from its parent in the view at the current pose,
+            pixels, ``(J, 2)`` (used by rigid links).
+        blocked: Contour samples each solving bone may not claim, ``(m, N)`` bool, or None
+            (set by the consistency step to resolve overlaps).
     """
 
     drawing: Drawing
@@ -149,6 +161,15 @@ class MatchProblem:
     rest_angle: np.ndarray
     terminal: np.ndarray
     params: CostParams
+    link_offset: np.ndarray
+    blocked: np.ndarray | None = None
+
+    def bone_blocked(self, j: int) -> np.ndarray | None:
+        """Blocked samples of the bone linking joint ``j`` to its parent (None if free)."""
+        b = self.solving.joint_link_bone[j]
+        if self.blocked is None or b < 0:
+            return None
+        return self.blocked[b]
 
     def has_triplet(self, j: int) -> bool:
         """Whether joint ``j`` closes a triplet (two consecutive bone links)."""
@@ -156,8 +177,16 @@ class MatchProblem:
 
 
 def make_problem(drawing: Drawing, solving: SolvingSkeleton, pixels_per_unit: float,
-                 params: CostParams | None = None) -> MatchProblem:
-    """Expected lengths and bind angles of the joint tree, scaled to the drawing."""
+                 reference: np.ndarray, params: CostParams | None = None) -> MatchProblem:
+    """Expected lengths and bind angles of the joint tree, scaled to the drawing.
+
+    Args:
+        drawing: The preprocessed drawing.
+        solving: The solving skeleton.
+        pixels_per_unit: View scale at the character.
+        reference: Joints in the view at the current pose, pixels, ``(J, 2)``.
+        params: Cost parameters.
+    """
     params = params or CostParams()
     par = solving.joint_parent
     rest = solving.rest_joints
@@ -169,20 +198,24 @@ def make_problem(drawing: Drawing, solving: SolvingSkeleton, pixels_per_unit: fl
     for j in np.flatnonzero(has):
         p = par[j]
         if solving.joint_link_bone[j] >= 0 and par[p] >= 0 and solving.joint_link_bone[p] >= 0:
-            d1, d2 = rest[p] - rest[par[p]], rest[j] - rest[p]
+            d1, d2 = reference[p] - reference[par[p]], reference[j] - reference[p]
             c = d1 @ d2 / max(np.linalg.norm(d1) * np.linalg.norm(d2), 1e-12)
             angle[j] = float(np.arccos(np.clip(c, -1.0, 1.0)))
-    return MatchProblem(drawing, solving, length, angle, solving.terminal, params)
+    offset = np.zeros((n, 2))
+    offset[has] = reference[has] - reference[par[has]]
+    return MatchProblem(drawing, solving, length, angle, solving.terminal, params, offset)
 
 
 def link_table(problem: MatchProblem, j: int, a: JointCandidates,
                b: JointCandidates) -> np.ndarray:
     """Pairwise table between parent candidates ``a`` and joint ``j``'s candidates ``b``."""
     if problem.solving.joint_link_bone[j] < 0:
-        return rigid_cost(problem.drawing, a.positions, b.positions, problem.link_length[j],
+        return rigid_cost(problem.drawing, a.positions, b.positions, problem.link_offset[j],
                           problem.params)
-    return pair_cost(problem.drawing, a.positions, a.radii, a.group, a.side, b.positions,
-                     b.radii, b.group, b.side, problem.link_length[j], problem.params)
+    prior = direction_cost(a.positions, b.positions, problem.link_offset[j], problem.params)
+    return prior + pair_cost(problem.drawing, a.positions, a.radii, a.group, a.side, b.positions,
+                     b.radii, b.group, b.side, problem.link_length[j], problem.params,
+                     blocked=problem.bone_blocked(j))
 
 
 def triplet_table(problem: MatchProblem, j: int, g: JointCandidates, p: JointCandidates,
@@ -194,16 +227,26 @@ def triplet_table(problem: MatchProblem, j: int, g: JointCandidates, p: JointCan
                         float(problem.rest_angle[j]), problem.params)
 
 
-def build_energy(problem: MatchProblem, cands: list[JointCandidates]) -> TreeEnergy:
-    """Factor tables of ``E_match`` over the candidate sets (Eq. 4)."""
+def build_energy(problem: MatchProblem, cands: list[JointCandidates],
+                 triplets: bool = True) -> TreeEnergy:
+    """Factor tables of ``E_match`` over the candidate sets (Eq. 4).
+
+    Args:
+        problem: The matching problem.
+        cands: Candidates of every joint.
+        triplets: Include the naturalness triplets (the coarse pass leaves them out).
+    """
     par = problem.solving.joint_parent
-    unary = tuple(c.unary for c in cands)
+    unary = tuple(c.unary if problem.bone_blocked(j) is None else
+                  np.maximum(c.unary, unary_from_aligned(c.aligned, bool(problem.terminal[j]),
+                                                         problem.params, problem.bone_blocked(j)))
+                  for j, c in enumerate(cands))
     pair, trip = [], []
     for j in range(problem.solving.n_joints):
         p = par[j]
         pair.append(None if p < 0 else link_table(problem, j, cands[p], cands[j]))
         trip.append(triplet_table(problem, j, cands[par[p]], cands[p], cands[j])
-                    if p >= 0 and problem.has_triplet(j) else None)
+                    if triplets and p >= 0 and problem.has_triplet(j) else None)
     return TreeEnergy(par, unary, tuple(pair), tuple(trip))
 
 
@@ -231,8 +274,10 @@ def joint_energy(problem: MatchProblem, conf: JointCandidates,
     sel = np.ones(n, bool) if joints is None else np.isin(np.arange(n), joints)
     terms = {"unary": 0.0, "pairwise": 0.0, "triplet": 0.0}
     for j in np.flatnonzero(sel):
-        cost, _ = unary_cost(problem.drawing, conf.positions[j:j + 1], conf.radii[j:j + 1],
-                             bool(problem.terminal[j]), problem.params)
+        _, aligned = unary_cost(problem.drawing, conf.positions[j:j + 1], conf.radii[j:j + 1],
+                                bool(problem.terminal[j]), problem.params)
+        cost = unary_from_aligned(aligned, bool(problem.terminal[j]), problem.params,
+                                  problem.bone_blocked(j))
         terms["unary"] += float(cost[0])
     one = [conf.take(np.array([j])) for j in range(n)]
     for j in range(n):

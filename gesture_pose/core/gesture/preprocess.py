@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 
 from ..exceptions import InputError
@@ -52,6 +53,10 @@ class Drawing:
         diagonal: Bounding-box diagonal, pixels.
         bbox: ``[[xmin, ymin], [xmax, ymax]]``, pixels.
         tree: KD-tree over ``points``.
+        field_origin: Pixel position of the distance field's first cell, ``(2,)``.
+        field_cell: Cell size of the distance field, pixels (epsilon / 4).
+        field_dist: Distance to the nearest contour (bridges included), pixels, ``(H, W)``.
+        field_owner: Contour sample owning the nearest contour point, ``(H, W)`` int.
     """
 
     points: np.ndarray
@@ -68,11 +73,32 @@ class Drawing:
     diagonal: float
     bbox: np.ndarray
     tree: cKDTree
+    field_origin: np.ndarray
+    field_cell: float
+    field_dist: np.ndarray
+    field_owner: np.ndarray
 
     @property
     def n_samples(self) -> int:
         """Number of contour samples ``N``."""
         return len(self.points)
+
+    def lookup(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distance to the contours and nearest contour sample at pixel positions.
+
+        Args:
+            points: Pixel positions, shape ``(..., 2)``.
+
+        Returns:
+            ``(distance (...), sample (...))``; points outside the field get ``inf``.
+        """
+        g = np.floor((np.asarray(points, float) - self.field_origin) / self.field_cell + 0.5)
+        h, w = self.field_dist.shape
+        ix, iy = g[..., 0].astype(np.int64), g[..., 1].astype(np.int64)
+        inside = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
+        ix, iy = np.clip(ix, 0, w - 1), np.clip(iy, 0, h - 1)
+        dist = np.where(inside, self.field_dist[iy, ix], np.inf)
+        return dist, self.field_owner[iy, ix]
 
     def stroke_samples(self, k: int) -> np.ndarray:
         """Samples of stroke ``k``, shape ``(n_k, 2)``."""
@@ -210,6 +236,47 @@ def preprocess(strokes: list[Stroke], params: PreprocessParams = PreprocessParam
         a_is_tail = (ea == 1) == (sign[sa] > 0)
         first, second = (ia, ib) if a_is_tail else (ib, ia)
         nxt[first], prev[second] = second, first
+    origin, cell, dist, owner = distance_field(points, nxt, np.stack([lo, hi]), eps)
     return Drawing(points, tangents, normals, np.concatenate(curv), stroke,
                    group_of_stroke[stroke], prev, nxt, offsets, bridges, eps, diagonal,
-                   np.stack([lo, hi]), cKDTree(points))
+                   np.stack([lo, hi]), cKDTree(points), origin, cell, dist, owner)
+
+
+def distance_field(points: np.ndarray, nxt: np.ndarray, bbox: np.ndarray, epsilon: float,
+                   margin: float = 0.3) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+    """Distance transform of the contours on a grid of step epsilon / 4.
+
+    Gaps closed by bridges up to two steps long count as ink; longer bridges do not.
+
+    Args:
+        points: Contour samples, ``(N, 2)``.
+        nxt: Next sample along the contour or -1, ``(N,)``.
+        bbox: Drawing bounding box, ``(2, 2)``.
+        epsilon: Sampling step, pixels.
+        margin: Grid margin around the box, fraction of the box diagonal.
+
+    Returns:
+        ``(origin (2,), cell, distance (H, W) pixels, owner sample (H, W))``.
+    """
+    cell = epsilon / 4.0
+    pad = margin * float(np.linalg.norm(bbox[1] - bbox[0]))
+    origin = bbox[0] - pad
+    shape = np.ceil((bbox[1] - bbox[0] + 2 * pad) / cell).astype(int) + 1
+    src = np.flatnonzero(nxt >= 0)
+    seg = points[nxt[src]] - points[src]
+    # Bridges longer than two steps are links, not ink: keep them out of the field.
+    short = np.linalg.norm(seg, axis=1) <= 2.0 * epsilon
+    src, seg = src[short], seg[short]
+    count = np.maximum(np.ceil(np.linalg.norm(seg, axis=1) / (0.5 * cell)).astype(int), 1)
+    rep = np.repeat(np.arange(len(src)), count)
+    frac = (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)) / count[rep]
+    dense = np.concatenate([points, points[src][rep] + frac[:, None] * seg[rep]])
+    owner_of = np.concatenate([np.arange(len(points)),
+                               np.where(frac[:] < 0.5, src[rep], nxt[src][rep])])
+    g = np.floor((dense - origin) / cell + 0.5).astype(int)
+    mask = np.ones((shape[1], shape[0]), bool)
+    owner = np.zeros((shape[1], shape[0]), int)
+    mask[g[:, 1], g[:, 0]] = False
+    owner[g[:, 1], g[:, 0]] = owner_of
+    dist, (iy, ix) = distance_transform_edt(mask, return_indices=True)
+    return origin, cell, dist * cell, owner[iy, ix]

@@ -96,8 +96,8 @@ def joint_radii(solving: SolvingSkeleton, skeleton: Skeleton, vertices: np.ndarr
         dist = np.linalg.norm(perp, axis=1)
         region = np.abs(t) < slab * length
         if weights is not None:
-            adj = np.unique(np.concatenate([np.flatnonzero(solving.head_joint == j),
-                                            np.flatnonzero(solving.tail_joint == j)]))
+            link = solving.joint_link_bone[j]
+            adj = (np.array([link]) if link >= 0 else np.flatnonzero(solving.head_joint == j))
             w = weights[:, solving.bones[adj]].sum(axis=1)
             region &= w > 0.3
         region &= dist < 1.5 * length
@@ -133,12 +133,16 @@ def discrete_radii(r_min: float, r_max: float, epsilon: float, max_count: int = 
         max_count: At most this many radii (evenly spread when the range is wider).
 
     Returns:
-        Radii, shape ``(k,)``, ``1 <= k <= max_count``.
+        Radii, shape ``(k,)``, ``1 <= k <= max_count``; when the range is narrower than a
+        step, its two ends if they differ by more than a quarter step, else its middle.
     """
     r_min = max(float(r_min), 0.5 * epsilon)
     r_max = max(float(r_max), r_min)
     count = int(np.floor((r_max - r_min) / epsilon)) + 1
     if count == 1:
+        # Narrower than a step: both extremes when they differ noticeably (a flat hand).
+        if r_max - r_min > 0.25 * epsilon and max_count >= 2:
+            return np.array([r_min, r_max])
         return np.array([0.5 * (r_min + r_max)])
     if count > max_count:
         return np.linspace(r_min, r_max, max_count)

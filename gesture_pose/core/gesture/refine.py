@@ -6,7 +6,9 @@ the part of ``E_match`` touching the joint, keep the joint on the same side of e
 contour and create no new inconsistency (the consistency term of its bones may not grow).
 Joints with reduced degrees of freedom, the pelvis and the shoulders, whose joints are tied
 by rigid offsets, are snapped to the nearest 2D rigid transform of their bind-pose
-neighbourhood (one ICP step, a 2D Kabsch fit). This repeats until no joint moves. The walk
+neighbourhood (one ICP step, a 2D Kabsch fit) unless that raises their energy by more than
+a small slack (a 2D rigid motion cannot follow the foreshortening of a turned torso). This
+repeats until no joint moves. The walk
 uses a fixed seed, so a given input always gives the same result.
 """
 
@@ -17,7 +19,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from .candidates import JointCandidates
-from .costs import pair_cost, rigid_cost, triplet_cost, unary_cost
+from .costs import (
+    direction_cost,
+    pair_cost,
+    rigid_cost,
+    triplet_cost,
+    unary_cost,
+    unary_from_aligned,
+)
 from .mrf import MatchProblem, joint_energy
 
 
@@ -31,6 +40,7 @@ class RefineParams:
         step: Standard deviation of a trial move, in epsilons.
         seed: Random seed.
         snap_rigid: Snap the rigid neighbourhoods (pelvis, shoulders).
+        snap_slack: A snap is kept unless it raises the group's energy by more than this.
     """
 
     iterations: int = 8
@@ -38,6 +48,7 @@ class RefineParams:
     step: float = 0.5
     seed: int = 0
     snap_rigid: bool = True
+    snap_slack: float = 0.1
 
 
 def _factor_energy(problem: MatchProblem, conf: JointCandidates, j: int,
@@ -49,12 +60,15 @@ def _factor_energy(problem: MatchProblem, conf: JointCandidates, j: int,
     r = np.full(t, conf.radii[j])
     g = np.full(t, conf.group[j])
     sd = np.full(t, conf.side[j])
-    total = unary_cost(d, trial, r, bool(problem.terminal[j]), prm)[0]
+    total = unary_from_aligned(unary_cost(d, trial, r, bool(problem.terminal[j]), prm)[1],
+                               bool(problem.terminal[j]), prm, problem.bone_blocked(j))
 
     def link(child: int, pa, ra, ga, sa, pb, rb, gb, sb) -> np.ndarray:
         if s.joint_link_bone[child] < 0:
-            return rigid_cost(d, pa, pb, problem.link_length[child], prm)
-        return pair_cost(d, pa, ra, ga, sa, pb, rb, gb, sb, problem.link_length[child], prm)
+            return rigid_cost(d, pa, pb, problem.link_offset[child], prm)
+        prior = direction_cost(pa, pb, problem.link_offset[child], prm)
+        return prior + pair_cost(d, pa, ra, ga, sa, pb, rb, gb, sb, problem.link_length[child],
+                                 prm, blocked=problem.bone_blocked(child))
 
     c1 = conf.take(np.arange(len(conf)))
     P, R, G, S = c1.positions, c1.radii, c1.group, c1.side
@@ -101,6 +115,12 @@ def _same_side(problem: MatchProblem, old: np.ndarray, trial: np.ndarray,
     side_new = np.sign(np.einsum("tnd,nd->tn", trial[:, None] - d.points[near][None],
                                  d.normals[near]))
     return np.all(side_new * side_old[None] >= 0, axis=1)
+
+
+def _with(conf: JointCandidates, positions: np.ndarray) -> JointCandidates:
+    """``conf`` with its joints moved to ``positions`` ``(J, 2)``."""
+    return JointCandidates(positions, conf.radii, conf.side, conf.origin, conf.group,
+                           conf.unary, conf.aligned)
 
 
 def rigid_groups(problem: MatchProblem) -> list[np.ndarray]:
@@ -159,8 +179,7 @@ def refine(problem: MatchProblem, conf: JointCandidates, template: np.ndarray,
         sweeps = sweep
         moved = 0
         for j in range(len(pos)):
-            cur = JointCandidates(pos, conf.radii, conf.side, conf.origin, conf.group,
-                                  conf.unary, conf.aligned)
+            cur = _with(conf, pos)
             trial = pos[j] + rng.normal(0.0, params.step * eps, (params.trials, 2))
             trial = np.concatenate([pos[j:j + 1], trial])
             ok = _same_side(problem, pos[j], trial, 2.0 * conf.radii[j] + eps)
@@ -172,10 +191,12 @@ def refine(problem: MatchProblem, conf: JointCandidates, template: np.ndarray,
                 pos[j] = trial[k]
                 moved += 1
         for grp in groups:
-            snapped = kabsch_2d(template[grp], pos[grp])
             trial_pos = pos.copy()
-            trial_pos[grp] = snapped
-            if np.abs(trial_pos - pos).max() > 1e-6:
+            trial_pos[grp] = kabsch_2d(template[grp], pos[grp])
+            old = _with(conf, pos)
+            new = _with(conf, trial_pos)
+            if (joint_energy(problem, new, grp)[0] <= joint_energy(problem, old, grp)[0]
+                    + params.snap_slack):
                 pos = trial_pos
         moves += moved
         if moved == 0:

@@ -18,7 +18,7 @@ from .types import SolvingSkeleton
 
 
 def select_bones(skeleton: Skeleton, override: np.ndarray | None = None,
-                 min_bone_epsilons: float = 2.0, epsilon_fraction: float = 0.02) -> np.ndarray:
+                 min_bone_epsilons: float = 1.5, epsilon_fraction: float = 0.02) -> np.ndarray:
     """Boolean mask of the solving bones, shape ``(n,)``.
 
     Args:
@@ -105,14 +105,21 @@ def build_solving_skeleton(skeleton: Skeleton, mask: np.ndarray) -> SolvingSkele
                 head[k] = new_joint(f"{name} head", near, -1, h)
         tail[k] = new_joint(f"{name} tail", head[k], k, skeleton.rest_tails[b])
     excluded = np.flatnonzero(~mask & np.asarray(skeleton.deform, dtype=bool))
+    extends = np.zeros(len(names), dtype=bool)
+    for e in excluded:
+        anc = skeleton.parents[e]
+        while anc >= 0 and not mask[anc]:
+            anc = skeleton.parents[anc]
+        if anc >= 0:
+            extends[tail[position[anc]]] = True
     return SolvingSkeleton(bones=bones, parent=parent, head_joint=head, tail_joint=tail,
                            joint_bones=tuple(names), joint_parent=np.array(jparent, int),
                            joint_link_bone=np.array(jlink, int), rest_joints=np.array(rest),
-                           excluded=excluded)
+                           excluded=excluded, extends=extends)
 
 
 def solving_skeleton(skeleton: Skeleton, override: np.ndarray | None = None,
-                     min_bone_epsilons: float = 2.0) -> SolvingSkeleton:
+                     min_bone_epsilons: float = 1.5) -> SolvingSkeleton:
     """Select the solving bones and build their joint tree (see :func:`select_bones`)."""
     return build_solving_skeleton(skeleton, select_bones(skeleton, override, min_bone_epsilons))
 

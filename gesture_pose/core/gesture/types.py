@@ -33,6 +33,8 @@ class SolvingSkeleton:
         rest_joints: Rest (bind-pose) world positions of the joints, ``(J, 3)``, world units.
         excluded: Full-skeleton indices of the deforming bones left out (they follow their
             parents), shape ``(k,)``.
+        extends: Joints continued by excluded bones (a hand tail followed by fingers), so
+            the drawn shape goes on past them, ``(J,)`` bool.
     """
 
     bones: np.ndarray
@@ -44,6 +46,7 @@ class SolvingSkeleton:
     joint_link_bone: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     rest_joints: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     excluded: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    extends: np.ndarray | None = None
 
     @property
     def n_bones(self) -> int:
@@ -61,10 +64,12 @@ class SolvingSkeleton:
 
     @property
     def terminal(self) -> np.ndarray:
-        """Joints with no child joint (hands, feet, head top), ``(J,)`` bool."""
+        """Joints where the drawn shape ends: no child joint, no excluded bone after them."""
         has_child = np.zeros(self.n_joints, dtype=bool)
         par = self.joint_parent[self.joint_parent >= 0]
         has_child[par] = True
+        if self.extends is not None:
+            has_child |= self.extends
         return ~has_child
 
 
