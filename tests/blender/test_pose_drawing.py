@@ -195,3 +195,16 @@ def test_flip_depth_mirrors_the_limb_and_keys_it(registered):
     np.testing.assert_allclose(after.pose.rotations[others], before.pose.rotations[others])
     channel = rotation_channel(after.rotation_modes[i])
     assert keyed_frames(arm, "forearm.L", channel) == [FRAME]
+
+
+def test_pose_is_the_first_button_of_the_tab(registered):
+    from gesture_pose.blender import registration
+
+    panels = [m for m in registration.MODULES if m.startswith("operators.")]
+    assert panels[0] == "operators.pose_drawing"  # sub-panels are drawn in this order
+    panel = bpy.types.VIEW3D_PT_gesture_pose_drawing
+    assert panel.bl_parent_id == "VIEW3D_PT_gesture_pose"
+    assert bpy.ops.gesture_pose.pose_drawing.get_rna_type().name == "Pose"
+    assert bpy.ops.gesture_pose.flip_depth.get_rna_type().name == "Flip Depth"
+    props = bpy.ops.gesture_pose.pose_drawing.get_rna_type().properties
+    assert props["insert_keys"].default and props["show_fit"].default

@@ -6,13 +6,22 @@ import numpy as np
 import pytest
 
 from gesture_pose.core.exceptions import SolverError
-from gesture_pose.core.gesture.depth import energies, ordering, qp, regularity, symmetry, twist
+from gesture_pose.core.gesture.depth import (
+    DepthOptions,
+    energies,
+    ordering,
+    qp,
+    regularity,
+    solve_pose3d,
+    symmetry,
+    twist,
+)
 from gesture_pose.core.gesture.depth.synthetic import project_embedding, solving_skeleton
 from gesture_pose.core.gesture.embedding import posed_joints
 from gesture_pose.core.gesture.types import Embedding2D
 from gesture_pose.core.rotations import exp_map
 from gesture_pose.core.skeleton import Pose, Skeleton
-from tests.core.fixtures import frame_along, front_camera, tree_skeleton
+from tests.core.fixtures import chain_skeleton, frame_along, front_camera, tree_skeleton
 
 FORWARD = np.array([0.0, 1.0, 0.0])
 
@@ -244,3 +253,49 @@ def test_symmetrize_makes_near_mirror_limbs_exact():
     # Beyond the threshold nothing changes.
     same, none = symmetry.symmetrize(sk, pose, pairs, np.radians(2.0))
     assert none == [] and np.allclose(same.rotations, pose.rotations)
+
+
+def test_contacts_keep_touching_joints_at_one_depth():
+    pts = np.stack([np.zeros(5), np.zeros(5), np.linspace(0.0, 1.6, 5)], 1)
+    sk = chain_skeleton(pts)
+    cam = front_camera(ortho=True)
+    solving = solving_skeleton(sk)
+    # Fold the chain into a square loop in the view plane, the last bone tilted 70 degrees
+    # towards the viewer: its tip is drawn next to the base but lies 0.38 m in front.
+    tilt = np.radians(70.0)
+    dirs = [[0, 0, 1], [1, 0, 0], [0, 0, -1], [-np.cos(tilt), -np.sin(tilt), 0]]
+    pose = Pose.identity(4)
+    for k, d in enumerate(dirs):
+        state = sk.forward(pose)
+        pose = pose.with_rotations(np.array([k]), sk.aim_local(
+            k, np.array(d, float), state, pose.rotations[k])[None])
+    emb = project_embedding(sk, solving, pose, cam, radius=0.14)
+    tip, base = solving.tail_joint[3], solving.head_joint[0]
+    assert [base, tip] in regularity.contact_pairs(emb).tolist()
+    reach = (emb.joint_radius[tip] + emb.joint_radius[base]) / cam.pixels_per_unit(6.0)
+    res = solve_pose3d(sk, emb, cam)
+    gap = abs((res.joints3d[tip] - res.joints3d[base]) @ FORWARD)
+    assert gap <= reach + 1e-6
+    free = solve_pose3d(sk, emb, cam, options=DepthOptions(use_contacts=False))
+    assert abs((free.joints3d[tip] - free.joints3d[base]) @ FORWARD) > reach + 0.05
+
+
+def test_spline_term_is_zero_on_quadratic_depths_only():
+    pts = np.stack([np.zeros(6), np.zeros(6), np.linspace(0.0, 2.0, 6)], 1)
+    sk = chain_skeleton(pts)
+    cam = front_camera(ortho=True)
+    solving = solving_skeleton(sk)
+    emb = project_embedding(sk, solving, Pose.identity(5), cam, radius=0.05)
+    frame = energies.view_frame(cam, pts.mean(axis=0))
+    term = regularity.spline_term(emb, solving.rest_joints, frame)
+    assert len(term.target) == 6  # every joint of the straight drawn limb is attracted
+    t = np.linspace(0.0, 1.0, 6)
+    X = solving.rest_joints.copy()
+    X[:, 1] = 0.3 * t**2 - 0.1 * t  # quadratic depth profile
+    assert term.value(X) < 1e-20
+    X[3, 1] += 0.05  # a kink
+    assert term.value(X) > 1e-4
+    free = np.zeros(solving.n_joints, bool)
+    free[3] = True  # a deliberately foreshortened link splits the limb into short runs
+    split = regularity.spline_term(emb, solving.rest_joints, frame, free=free)
+    assert len(split.target) == 0
