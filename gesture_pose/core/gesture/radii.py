@@ -2,8 +2,9 @@
 
 A joint's circle in the drawing is the outline of the body around it. For every joint the
 mesh region around it is gathered (vertices skinned to the bones meeting at the joint, in a
-slab across the joint's bone, or by distance when there are no weights). A least-squares
-sphere fit and a bone-aligned PCA box of that region give the minimum and maximum radius;
+slab across the joint's bone, or by distance when there are no weights). The half-extents
+of a bone-aligned PCA box of that region give the minimum and maximum radius, widened at end
+caps by a least-squares sphere fit of the cap;
 the candidate radii in the drawing are sampled between them at step epsilon.
 """
 
@@ -108,10 +109,11 @@ def joint_radii(solving: SolvingSkeleton, skeleton: Skeleton, vertices: np.ndarr
         cov = p2.T @ p2 / len(p2)
         _, vecs = np.linalg.eigh(cov)
         half = np.percentile(np.abs(p2 @ vecs), percentile, axis=0)
-        _, r_sphere = fit_sphere(verts[region]) if region.sum() >= 4 else (None, half.mean())
-        r_sphere = float(np.clip(r_sphere, 0.5 * half.min(), 1.5 * half.max()))
-        r_min[j] = min(half.min(), r_sphere)
-        r_max[j] = max(half.max(), r_sphere)
+        r_min[j], r_max[j] = half.min(), half.max()
+        if solving.terminal[j]:
+            # At an end cap the region is a dome: its sphere bounds the drawn cap.
+            r_sphere = fit_sphere(verts[region])[1]
+            r_max[j] = max(r_max[j], float(np.clip(r_sphere, half.min(), 1.5 * half.max())))
     return r_min, r_max
 
 

@@ -64,13 +64,17 @@ class SolvingSkeleton:
 
     @property
     def terminal(self) -> np.ndarray:
-        """Joints where the drawn shape ends: no child joint, no excluded bone after them."""
-        has_child = np.zeros(self.n_joints, dtype=bool)
-        par = self.joint_parent[self.joint_parent >= 0]
-        has_child[par] = True
+        """Joints where the drawn shape ends, ``(J,)`` bool.
+
+        These are the joints of degree one in the joint tree (leaves, and a root with a
+        single child) that no excluded bone continues.
+        """
+        degree = (self.joint_parent >= 0).astype(int)
+        np.add.at(degree, self.joint_parent[self.joint_parent >= 0], 1)
+        ends = degree <= 1
         if self.extends is not None:
-            has_child |= self.extends
-        return ~has_child
+            ends &= ~self.extends
+        return ends
 
 
 @dataclass(frozen=True)

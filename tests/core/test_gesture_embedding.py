@@ -1,0 +1,118 @@
+"""The 2D embedding on tiny hand-made drawings with exact expectations."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gesture_pose.core.exceptions import InputError
+from gesture_pose.core.gesture.embedding import fit_drawing
+from gesture_pose.core.gesture.radii import discrete_radii, fit_sphere, joint_radii
+from gesture_pose.core.gesture.solving import solving_skeleton
+from gesture_pose.core.skeleton import Pose
+from gesture_pose.core.stroke import Stroke
+
+from .fixtures import chain_skeleton, front_camera, tree_skeleton
+from .gesture_drawings import bent_arm_outline, capsule_vertices
+
+R = 0.1125  # limb radius, metres (30 px in the orthographic front camera)
+
+
+def _arm_case():
+    cam = front_camera(ortho=True)  # 800 px for 3 m: 266.7 px per metre
+    s, e, w = np.array([-0.8, 0, 0.8]), np.array([0.1, 0, 0.8]), np.array([0.7, 0, 0.8])
+    skel = chain_skeleton(np.stack([s, e, w]))
+    outline = bent_arm_outline(s[[0, 2]], e[[0, 2]], 0.6, R)
+    pixels = cam.project(np.stack([outline[:, 0], np.zeros(len(outline)), outline[:, 1]], 1))
+    verts = capsule_vertices(np.stack([s, e, w]), R)
+    truth = cam.project(np.stack([s, e, e + [0, 0, 0.6]]))
+    return cam, skel, pixels, verts, truth
+
+
+def test_bent_arm_puts_the_elbow_at_the_arc_centre_inside_the_arm():
+    cam, skel, pixels, verts, truth = _arm_case()
+    emb = fit_drawing([Stroke(pixels)], skel, Pose.identity(2), verts, cam)
+    elbow = emb.joint_index("b0 tail")
+    eps = emb.epsilon
+    # Within one resampling step (the naturalness prior pulls a little towards straight).
+    assert np.linalg.norm(emb.joints2d[elbow] - truth[1]) < eps
+    # Shoulder and wrist at their caps' centres.
+    assert np.linalg.norm(emb.joints2d[emb.joint_index("b0 head")] - truth[0]) < eps
+    assert np.linalg.norm(emb.joints2d[emb.joint_index("b1 tail")] - truth[2]) < eps
+    # The elbow comes from the contours, on the arc's concave side (inside the arm).
+    assert emb.joint_visible[elbow]
+    assert emb.joint_radius[elbow] == pytest.approx(30.0, abs=eps)
+    outer_arc = pixels[30:54]
+    to_centre = truth[1] - outer_arc
+    to_elbow = emb.joints2d[elbow] - outer_arc
+    assert np.all(np.einsum("nd,nd->n", to_centre, to_elbow) > 0)
+    assert emb.coverage > 0.85
+    assert all(len(segs) > 0 for segs in emb.bone_segments)
+    assert set(emb.timings) >= {"preprocess", "candidates", "mrf", "consistency", "refine"}
+
+
+def test_fit_is_deterministic():
+    cam, skel, pixels, verts, _ = _arm_case()
+    a = fit_drawing([Stroke(pixels)], skel, Pose.identity(2), verts, cam)
+    b = fit_drawing([Stroke(pixels)], skel, Pose.identity(2), verts, cam)
+    np.testing.assert_array_equal(a.joints2d, b.joints2d)
+
+
+def test_tiny_drawing_and_missing_mesh_are_input_errors():
+    cam, skel, pixels, verts, _ = _arm_case()
+    small = (pixels - pixels.mean(0)) * 0.05 + pixels.mean(0)
+    with pytest.raises(InputError, match="far smaller"):
+        fit_drawing([Stroke(small)], skel, Pose.identity(2), verts, cam)
+    with pytest.raises(InputError, match="mesh"):
+        fit_drawing([Stroke(pixels)], skel, Pose.identity(2), np.zeros((0, 3)), cam)
+
+
+def test_solving_skeleton_joints_and_exclusion():
+    skel = tree_skeleton()
+    sol = solving_skeleton(skel)
+    # Connected children share their parent's tail joint; unconnected heads are new joints
+    # linked rigidly (-1) to the nearer joint of the parent.
+    assert sol.head_joint[1] == sol.tail_joint[0]
+    arm = list(skel.names).index("arm.L")
+    k = int(np.flatnonzero(sol.bones == arm)[0])
+    assert sol.head_joint[k] != sol.tail_joint[0]
+    assert sol.joint_link_bone[sol.head_joint[k]] == -1
+    assert sol.joint_parent[sol.head_joint[k]] == sol.tail_joint[0]
+    assert np.all(sol.joint_parent < np.arange(sol.n_joints))
+    # A bone shorter than 1.5 steps (2% of the rest diagonal) is left out and its parent's
+    # tail is no longer terminal.
+    pts = np.array([[0, 0, 0], [0, 0, 1.0], [0, 0, 2.0], [0, 0, 2.02]])
+    chain = chain_skeleton(pts)
+    sol = solving_skeleton(chain)
+    assert sol.bones.tolist() == [0, 1] and sol.excluded.tolist() == [2]
+    assert sol.extends[sol.tail_joint[1]] and not sol.terminal[sol.tail_joint[1]]
+    # The "Gesture" collection overrides the choice.
+    sol = solving_skeleton(chain, override=np.array([True, False, False]))
+    assert sol.bones.tolist() == [0]
+    with pytest.raises(InputError, match="Gesture"):
+        solving_skeleton(chain, override=np.zeros(3, bool))
+
+
+def test_sphere_fit_and_capsule_radii():
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(200, 3))
+    pts = 0.7 * pts / np.linalg.norm(pts, axis=1, keepdims=True) + [1, 2, 3]
+    centre, radius = fit_sphere(pts)
+    np.testing.assert_allclose(centre, [1, 2, 3], atol=1e-9)
+    assert radius == pytest.approx(0.7)
+    pts3 = np.array([[0, 0, 0], [1.0, 0, 0], [2.0, 0, 0]])
+    skel = chain_skeleton(pts3)
+    sol = solving_skeleton(skel)
+    r_min, r_max = joint_radii(sol, skel, capsule_vertices(pts3, 0.1, 2000))
+    np.testing.assert_allclose(r_min, 0.1, rtol=0.1)
+    inner = ~sol.terminal
+    np.testing.assert_allclose(r_max[inner], 0.1, rtol=0.1)
+    # The end cap's sphere may widen the terminal joint's range, never past 1.5x.
+    assert np.all((r_max[sol.terminal] >= 0.095) & (r_max[sol.terminal] <= 0.15))
+
+
+def test_discrete_radii_step_epsilon():
+    np.testing.assert_allclose(discrete_radii(10, 31, 10), [10, 20, 30])
+    np.testing.assert_allclose(discrete_radii(10, 11, 10), [10.5])
+    np.testing.assert_allclose(discrete_radii(10, 15, 10), [10, 15])
+    assert len(discrete_radii(1, 100, 1, max_count=4)) == 4
