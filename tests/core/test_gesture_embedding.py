@@ -13,7 +13,7 @@ from gesture_pose.core.skeleton import Pose
 from gesture_pose.core.stroke import Stroke
 
 from .fixtures import chain_skeleton, front_camera, tree_skeleton
-from .gesture_drawings import bent_arm_outline, capsule_vertices
+from .test_gesture_fixtures import bent_arm_outline, capsule_vertices
 
 R = 0.1125  # limb radius, metres (30 px in the orthographic front camera)
 

@@ -15,7 +15,7 @@ from gesture_pose.core.gesture.trace import (
     trace_contours,
 )
 
-from .gesture_drawings import uv_sphere
+from .test_gesture_fixtures import uv_sphere
 
 
 def _camera() -> Camera:

@@ -1,4 +1,4 @@
-"""Hand-built gesture drawings and capsule meshes for the gesture-mode tests."""
+"""Hand-built gesture drawings and meshes shared by the gesture-mode tests (no tests here)."""
 
 from __future__ import annotations
 
