@@ -224,3 +224,43 @@ def test_sample_scene_saves_with_two_abstractions(registered, tmp_path) -> None:
     result = _run(bpy.ops.gesture_pose.pose_abstraction, arm, sketch="Sketch",
                   abstraction="Stick Figure", insert_keys=False)
     assert result == {"FINISHED"}
+
+
+def test_ik_limits_bound_the_solution(humanoid) -> None:
+    from gesture_pose.core.rotations import log_map
+
+    arm, _, stick, _ = humanoid
+    builders.apply_rotations(arm, {"forearm.L": ((0.0, 1.0, 0.0), -60.0)})
+    bpy.context.view_layer.update()
+    strokes = ab.evaluated_polylines(stick)
+    builders.pose_humanoid(arm, "rest")
+    pb = arm.pose.bones["forearm.L"]
+    for axis in "xyz":
+        setattr(pb, f"use_ik_limit_{axis}", True)
+        setattr(pb, f"ik_min_{axis}", -0.3)
+        setattr(pb, f"ik_max_{axis}", 0.3)
+    builders.add_grease_pencil("Sketch", strokes)
+    result = _run(bpy.ops.gesture_pose.pose_abstraction, arm, sketch="Sketch",
+                  abstraction="Stick Figure", insert_keys=False)
+    assert result == {"FINISHED"}
+    theta = log_map(np.array(pb.matrix_basis.to_3x3()))
+    assert np.abs(theta).max() <= 0.3 + 1e-4
+    assert np.abs(theta).max() > 0.25  # pressed against the limit by the drawing
+
+
+def test_free_scale_collection_scales_only_its_bones(humanoid) -> None:
+    arm, _, stick, _ = humanoid
+    coll = arm.data.collections.new("Free Scale")
+    coll.assign(arm.data.bones["forearm.L"])
+    arm.pose.bones["forearm.L"].scale = (1.3, 1.3, 1.3)
+    bpy.context.view_layer.update()
+    strokes = ab.evaluated_polylines(stick)
+    arm.pose.bones["forearm.L"].scale = (1.0, 1.0, 1.0)
+    builders.add_grease_pencil("Sketch", strokes)
+    result = _run(bpy.ops.gesture_pose.pose_abstraction, arm, sketch="Sketch",
+                  abstraction="Stick Figure", free_scales=True)
+    assert result == {"FINISHED"}
+    scales = {pb.name: pb.scale[0] for pb in arm.pose.bones}
+    assert abs(scales["forearm.L"] - 1.3) < 0.02
+    assert all(abs(v - 1.0) < 1e-6 for k, v in scales.items() if k != "forearm.L")
+    assert keyed_frames(arm, "forearm.L", "scale")

@@ -61,8 +61,11 @@ ASSIGNMENT_ITEMS = [
 #: Mesh vertices farther than this fraction of the character size from LBS mean a rig that
 #: is not plain linear blend skinning.
 LBS_TOLERANCE = 1e-3
-#: Bones whose rotation-matrix entries (or scale) change less than this are not written.
-WRITE_TOLERANCE = 1e-4
+#: Bones whose rotation-matrix entries (or scale) change less than this (about 0.06 degrees)
+#: are not written or keyed.
+WRITE_TOLERANCE = 1e-3
+#: Bone collection restricting which bones may scale when scales are freed.
+SCALE_COLLECTION = "Free Scale"
 
 
 class _SolverProps:
@@ -78,7 +81,8 @@ class _SolverProps:
                                            description="Optimize bone rotations")
     free_scales: bpy.props.BoolProperty(name="Scales", default=False,
                                         description="Optimize uniform bone scales (kept at "
-                                        "least Min Scale)")
+                                        "least Min Scale; only the bones of a 'Free Scale' "
+                                        "bone collection when there is one)")
     free_translation: bpy.props.BoolProperty(name="Root Translation", default=False,
                                              description="Optimize the root bones' location")
     min_scale: bpy.props.FloatProperty(name="Min Scale", default=0.1, min=0.001, soft_max=1.0)
@@ -115,9 +119,18 @@ class RigJob:
     warnings: tuple[str, ...]
 
 
-def free_space(arm: ArmatureData, rotations: bool, scales: bool,
-               translation: bool) -> ParameterSpace:
-    """Free parameters: bones that are not pinned and move the mesh (or have such children)."""
+def free_space(arm: ArmatureData, rotations: bool, scales: bool, translation: bool,
+               scale_bones: np.ndarray | None = None) -> ParameterSpace:
+    """Free parameters: bones that are not pinned and move the mesh (or have such children).
+
+    Args:
+        arm: The armature.
+        rotations: Free the rotations.
+        scales: Free the uniform scales (of ``scale_bones`` only, when given).
+        translation: Free the root bones' locations.
+        scale_bones: Bones allowed to scale, ``(n,)`` bool (the "Free Scale" bone
+            collection), or None for all.
+    """
     skel = arm.skeleton
     moves = skel.deform.copy()
     for j in range(skel.n_bones - 1, -1, -1):
@@ -125,8 +138,18 @@ def free_space(arm: ArmatureData, rotations: bool, scales: bool,
         if p >= 0 and moves[j]:
             moves[p] = True
     ok = moves & ~arm.pinned
-    return ParameterSpace.from_masks(skel.parents, ok & rotations, ok & scales,
+    scalable = ok & scales if scale_bones is None else ok & scales & scale_bones
+    return ParameterSpace.from_masks(skel.parents, ok & rotations, scalable,
                                      ok & (skel.parents < 0) & translation)
+
+
+def scale_collection(arm_obj, names: tuple[str, ...]) -> np.ndarray | None:
+    """Bones of the "Free Scale" bone collection, ``(n,)`` bool, or None without it."""
+    colls = [c for c in arm_obj.data.collections_all if c.name == SCALE_COLLECTION]
+    if not colls:
+        return None
+    members = {b.name for c in colls for b in c.bones}
+    return np.array([n in members for n in names], dtype=bool)
 
 
 def step_limits(arm: ArmatureData, start: RigPose, use_ik: bool, min_scale: float,
@@ -147,7 +170,8 @@ def read_rig_job(op, context, arm_obj) -> RigJob:
     start, warnings = read_rig_pose(arm_obj, arm)
     mesh = read_skinned_meshes(arm_obj, arm.skeleton, context.evaluated_depsgraph_get())
     size = float(np.linalg.norm(np.ptp(mesh.deformed_vertices, axis=0)))
-    space = free_space(arm, op.free_rotations, op.free_scales, op.free_translation)
+    space = free_space(arm, op.free_rotations, op.free_scales, op.free_translation,
+                       scale_collection(arm_obj, arm.names))
     limits = step_limits(arm, start, op.use_ik_limits, op.min_scale, size)
     if not op.black_box:
         off = lbs_mismatch(arm.skeleton, start, mesh.rest_vertices,
