@@ -264,3 +264,27 @@ def test_free_scale_collection_scales_only_its_bones(humanoid) -> None:
     assert abs(scales["forearm.L"] - 1.3) < 0.02
     assert all(abs(v - 1.0) < 1e-6 for k, v in scales.items() if k != "forearm.L")
     assert keyed_frames(arm, "forearm.L", "scale")
+
+
+def test_drawover_black_box_path(humanoid) -> None:
+    arm, _, _, _ = humanoid
+    pinned = arm.data.collections.new("Pinned")
+    for b in arm.data.bones:
+        if b.name not in ("upper_arm.L", "forearm.L"):
+            pinned.assign(b)
+    m = np.array(arm.matrix_world)
+    bone = arm.data.bones["forearm.L"]
+    head, tail = (m[:3, :3] @ np.array(v) + m[:3, 3] for v in (bone.head_local,
+                                                                 bone.tail_local))
+    source = head + np.linspace(0.15, 0.9, 20)[:, None] * (tail - head) + [0, -0.2, 0]
+    builders.apply_rotations(arm, {"forearm.L": ((0.0, 1.0, 0.0), -40.0)})
+    bpy.context.view_layer.update()
+    motion = _bone_motion(arm, "forearm.L")
+    want = _bone_dirs(arm)["forearm.L"]
+    target = source @ motion[:3, :3].T + motion[:3, 3]
+    builders.pose_humanoid(arm, "rest")
+    builders.add_grease_pencil("Sketch", [source, target])
+    result = _run(bpy.ops.gesture_pose.drawover, arm, sketch="Sketch", black_box=True,
+                  representatives=60, max_iterations=15)
+    assert result == {"FINISHED"}
+    assert _image_angle(_bone_dirs(arm)["forearm.L"], want) < 5.0
