@@ -127,54 +127,45 @@ class Environment:
 
 @dataclass(frozen=True)
 class DistanceGrid:
-    """Unsigned distance to the environment's surfaces sampled on a regular grid.
+    """Distance to the environment's surfaces: nearest of dense surface samples.
 
     Attributes:
-        origin: World position of voxel ``(0, 0, 0)``, shape ``(3,)``.
-        spacing: Voxel size, world units.
-        values: Distances, shape ``(nx, ny, nz)``.
+        samples: Surface points at most ``spacing`` apart, shape ``(m, 3)``.
+        spacing: Sample spacing, world units (the distance error is below half of it).
+        max_distance: Distances are clamped to this (only penetrations matter).
     """
 
-    origin: np.ndarray
+    samples: np.ndarray
     spacing: float
-    values: np.ndarray
+    max_distance: float = 0.3
+    _tree: cKDTree | None = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        """Build the k-d tree."""
+        tree = cKDTree(self.samples) if len(self.samples) else None
+        object.__setattr__(self, "_tree", tree)
 
     def sample(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Trilinear distance and its gradient at points (far values outside the grid).
+        """Distance and its gradient at points.
 
         Args:
             points: World points, shape ``(..., 3)``.
 
         Returns:
-            ``(distance (...), gradient (..., 3))``.
+            ``(distance (...), gradient (..., 3))``; ``max_distance`` and zero gradient
+            where no surface is closer.
         """
-        g = (np.asarray(points, float) - self.origin) / self.spacing
-        shape = np.array(self.values.shape)
-        inside = np.all((g >= 0) & (g <= shape - 1), axis=-1)
-        g = np.clip(g, 0, shape - 1 - 1e-9)
-        i0 = np.floor(g).astype(int)
-        f = g - i0
-        v = self.values
-        dist = np.zeros(g.shape[:-1])
-        grad = np.zeros(g.shape)
-        for dx in (0, 1):
-            wx = f[..., 0] if dx else 1 - f[..., 0]
-            sx = 1.0 if dx else -1.0
-            for dy in (0, 1):
-                wy = f[..., 1] if dy else 1 - f[..., 1]
-                sy = 1.0 if dy else -1.0
-                for dz in (0, 1):
-                    wz = f[..., 2] if dz else 1 - f[..., 2]
-                    sz = 1.0 if dz else -1.0
-                    val = v[i0[..., 0] + dx, i0[..., 1] + dy, i0[..., 2] + dz]
-                    dist += wx * wy * wz * val
-                    grad[..., 0] += sx * wy * wz * val
-                    grad[..., 1] += wx * sy * wz * val
-                    grad[..., 2] += wx * wy * sz * val
-        far = 10.0 * self.spacing + v.max()
-        dist = np.where(inside, dist, far)
-        grad = np.where(inside[..., None], grad / self.spacing, 0.0)
-        return dist, grad
+        p = np.asarray(points, float)
+        flat = p.reshape(-1, 3)
+        if self._tree is None:
+            return (np.full(p.shape[:-1], self.max_distance), np.zeros(p.shape))
+        d, idx = self._tree.query(flat, distance_upper_bound=self.max_distance, workers=1)
+        near = np.isfinite(d)
+        grad = np.zeros_like(flat)
+        diff = flat[near] - self.samples[idx[near]]
+        grad[near] = diff / np.maximum(d[near], 1e-12)[:, None]
+        d = np.where(near, d, self.max_distance)
+        return d.reshape(p.shape[:-1]), grad.reshape(p.shape)
 
 
 def surface_samples(env: Environment, spacing: float, lo: np.ndarray,
@@ -194,28 +185,22 @@ def surface_samples(env: Environment, spacing: float, lo: np.ndarray,
 
 
 def distance_grid(env: Environment, center: np.ndarray, half_size: float,
-                  spacing: float = 0.04) -> DistanceGrid:
-    """Distance grid of a cube around ``center``.
+                  spacing: float = 0.015, max_distance: float = 0.3) -> DistanceGrid:
+    """Distance to the environment's surfaces inside a cube around ``center``.
 
     Args:
         env: The environment.
         center: Cube centre, shape ``(3,)``.
         half_size: Half the cube's edge, world units.
-        spacing: Voxel size, world units (surface samples are half as far apart).
+        spacing: Surface sample spacing, world units.
+        max_distance: Distances are clamped to this.
 
     Returns:
-        The grid (all distances ``4 * half_size`` when the cube holds no surface).
+        The distance function.
     """
     lo = np.asarray(center, float) - half_size
     hi = np.asarray(center, float) + half_size
-    n = int(np.ceil(2 * half_size / spacing)) + 1
-    axes = [lo[k] + spacing * np.arange(n) for k in range(3)]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    samples = surface_samples(env, spacing / 2, lo, hi)
-    if len(samples) == 0:
-        return DistanceGrid(lo, spacing, np.full((n, n, n), 4 * half_size))
-    d, _ = cKDTree(samples).query(grid, workers=1)
-    return DistanceGrid(lo, spacing, d.reshape(n, n, n))
+    return DistanceGrid(surface_samples(env, spacing, lo, hi), spacing, max_distance)
 
 
 def _region(env: Environment, tri: int, height_tol: float = 0.03,
@@ -307,10 +292,48 @@ class Seat:
     region: np.ndarray
 
 
+def _seat_hits(env: Environment, origin: np.ndarray, direction: np.ndarray,
+               hip_radius: float, near: float, far: float, step: float = 0.02) -> list[Hit]:
+    """Up-facing surfaces under the eye ray where the hips would rest, nearest first.
+
+    The eye ray meets the seat itself when the pelvis is drawn over it; when the seat is
+    hidden behind the drawn hips (hips at the back of a seat seen from the front), the
+    point of the ray lying one hip radius above an up-facing surface is used instead.
+    """
+    up = env.up
+    out = []
+    for hit in env.raycast(origin, direction):
+        if near <= hit.distance <= far and hit.normal @ up >= np.cos(UP_ANGLE):
+            out.append((hit.distance, hit))
+    ts = np.arange(near, min(far, 50.0), step)
+    if ts.size and len(env.triangles):
+        pts = origin + ts[:, None] * direction
+        c = env.corners
+        n = env.normals
+        flat = np.flatnonzero(np.abs(n @ up) >= np.cos(UP_ANGLE))
+        lo2 = c[flat].min(1)
+        hi2 = c[flat].max(1)
+        # Candidate triangles under each ray sample (bounding boxes), then exact test.
+        for k, p in enumerate(pts):
+            under = flat[np.all((p[:2] >= lo2[:, :2]) & (p[:2] <= hi2[:, :2]), 1)]
+            if under.size == 0:
+                continue
+            sub = Environment(env.vertices, env.triangles[under], under, up=up)
+            hits = sub.raycast(p, -up)
+            if hits:
+                h = hits[0]
+                gap = p @ up - h.point @ up
+                if 0.5 * hip_radius <= gap <= 1.5 * hip_radius:
+                    out.append((ts[k], Hit(ts[k], h.point, up.copy(), int(under[h.triangle]),
+                                           int(env.object_ids[under[h.triangle]]))))
+    out.sort(key=lambda item: item[0])
+    return [h for _, h in out]
+
+
 def find_seat(env: Environment, origin: np.ndarray, direction: np.ndarray,
               seated_hip_height: float, hip_radius: float,
               grid: DistanceGrid | None = None, seat_range=SEAT_RANGE,
-              sigma: float = 0.15) -> Seat | None:
+              sigma: float = 0.15, near: float = 0.0, far: float = 50.0) -> Seat | None:
     """Sit location along an eye ray (Section 4.1.2).
 
     Args:
@@ -323,16 +346,17 @@ def find_seat(env: Environment, origin: np.ndarray, direction: np.ndarray,
         grid: Distance grid used to reject spots where the hips would collide.
         seat_range: Allowed seat heights in units of ``seated_hip_height``.
         sigma: Distance scale (world units) trading closeness to the hit for centerness.
+        near: Start of the searched part of the ray, world units from ``origin``.
+        far: End of the searched part of the ray.
 
     Returns:
         The seat, or None when the ray meets no suitable surface.
     """
     up = env.up
-    for hit in env.raycast(origin, direction):
-        if hit.normal @ up < np.cos(UP_ANGLE):
-            continue
+    o, d = np.asarray(origin, float), normalize(np.asarray(direction, float))
+    lo, hi = seat_range
+    for hit in _seat_hits(env, o, d, hip_radius, near, far):
         height = env.height_above_floor(hit.point + up * 1e-3)
-        lo, hi = seat_range
         if not lo * seated_hip_height <= height <= hi * seated_hip_height:
             continue
         region = _region(env, hit.triangle)

@@ -225,7 +225,9 @@ def humanoid_figure(skeleton: Skeleton, ik_limits: np.ndarray | None = None,
 
     Ranges of motion are the rig's IK limits where set (``ik_limits``, ``(n, 3, 2)``
     radians, NaN where unlimited) and anatomical defaults otherwise: hinge elbows and
-    knees flexing 0-150 degrees, balls elsewhere.
+    knees flexing 0-150 degrees; shoulders flexing -50 to 170 degrees, abducting +-130 and
+    twisting +-80; hips flexing -20 to 130 degrees, abducting +-45 and twisting +-40;
+    spine, neck, hands and feet balls of +-30 to 70 degrees.
 
     Args:
         skeleton: Rest skeleton (world space).
@@ -273,7 +275,7 @@ def humanoid_figure(skeleton: Skeleton, ik_limits: np.ndarray | None = None,
         knee = _limb_axes(skeleton, th, sh, forward, False)
         groups += [
             _group(f"upper_arm.{s}", skeleton, [ua],
-                   _ball(skeleton, ua, elbow, [[-150, 150], [-90, 90], [-150, 150]]),
+                   _ball(skeleton, ua, elbow, [[-50, 170], [-80, 80], [-130, 130]]),
                    ik_limits),
             _group(f"forearm.{s}", skeleton, [fa],
                    (skeleton.rest_frames[fa].T @ elbow[:, None], np.radians([[0.0, 150.0]])),
@@ -281,7 +283,7 @@ def humanoid_figure(skeleton: Skeleton, ik_limits: np.ndarray | None = None,
             _group(f"hand.{s}", skeleton, [hd],
                    _ball(skeleton, hd, elbow, [[-70, 70], [-30, 30], [-60, 60]]), ik_limits),
             _group(f"thigh.{s}", skeleton, [th],
-                   _ball(skeleton, th, knee, [[-140, 40], [-45, 45], [-70, 70]]), ik_limits),
+                   _ball(skeleton, th, knee, [[-130, 20], [-40, 40], [-45, 45]]), ik_limits),
             _group(f"shin.{s}", skeleton, [sh],
                    (skeleton.rest_frames[sh].T @ knee[:, None], np.radians([[0.0, 150.0]])),
                    ik_limits),

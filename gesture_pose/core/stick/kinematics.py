@@ -51,6 +51,10 @@ class PoseModel:
     skeleton: Skeleton
     figure: CharacterFigure
     base: Pose
+    _e_bone: np.ndarray = field(init=False, repr=False)
+    _e_genes: np.ndarray = field(init=False, repr=False)
+    _e_basis: np.ndarray = field(init=False, repr=False)
+    _e_valid: np.ndarray = field(init=False, repr=False)
     _gene_bone: np.ndarray = field(init=False, repr=False)
     _gene_col: np.ndarray = field(init=False, repr=False)
     _gene_index: np.ndarray = field(init=False, repr=False)
@@ -71,6 +75,22 @@ class PoseModel:
                     col.append(c)
                     gene.append(start + c)
             start += m
+        entries = [(int(b), grp, start_g) for grp, start_g in self._group_starts()
+                   for b in grp.bones]
+        e_bone = np.array([b for b, _, _ in entries], int)
+        e_genes = np.zeros((len(entries), 3), int)
+        e_basis = np.zeros((len(entries), 3, 3))
+        e_ncol = np.zeros(len(entries), int)
+        for e, (b, grp, sg) in enumerate(entries):
+            j = int(np.flatnonzero(grp.bones == b)[0])
+            m = grp.bounds.shape[0]
+            e_genes[e, :m] = sg + np.arange(m)
+            e_basis[e, :, :m] = grp.bases[j] / len(grp.bones)
+            e_ncol[e] = m
+        object.__setattr__(self, "_e_bone", e_bone)
+        object.__setattr__(self, "_e_genes", e_genes)
+        object.__setattr__(self, "_e_basis", e_basis)
+        object.__setattr__(self, "_e_valid", np.arange(3)[None] < e_ncol[:, None])
         object.__setattr__(self, "_gene_bone", np.array([b for b, _, _ in bone], int))
         object.__setattr__(self, "_gene_col", np.array(col, int))
         object.__setattr__(self, "_gene_index", np.array(gene, int))
@@ -84,6 +104,14 @@ class PoseModel:
         p = sk.parents[r]
         hc = np.eye(3) if p < 0 else state.frames[p] @ sk.rest_frames[p].T
         object.__setattr__(self, "_root_hcarry", hc)
+
+    def _group_starts(self) -> list:
+        """``(group, first gene index)`` of every gene group."""
+        out, start = [], N_ROOT_GENES
+        for grp in self.figure.groups:
+            out.append((grp, start))
+            start += grp.bounds.shape[0]
+        return out
 
     @property
     def n_genes(self) -> int:
@@ -116,19 +144,14 @@ class PoseModel:
         x = np.atleast_2d(genes)
         P = x.shape[0]
         Q = np.broadcast_to(self.base.rotations, (P,) + self.base.rotations.shape).copy()
-        start, phis = N_ROOT_GENES, []
-        for grp in self.figure.groups:
-            m, k = grp.bounds.shape[0], len(grp.bones)
-            g = x[:, start:start + m]
-            phi = np.einsum("kij,pj->pki", grp.bases, g) / k
-            Q[:, grp.bones] = Q[:, grp.bones] @ exp_map(phi)
-            phis.append(phi)
-            start += m
+        g = np.where(self._e_valid, x[:, self._e_genes], 0.0)
+        phi = np.einsum("eij,pej->pei", self._e_basis, g)
+        Q[:, self._e_bone] = Q[:, self._e_bone] @ exp_map(phi)
         C = self._root_carry
         G = exp_map(x[:, 3:6])
         r = self.figure.root_bone
         Q[:, r] = C.T @ G @ C @ self.base.rotations[r]
-        return Q, np.concatenate(phis, 1) if phis else np.zeros((P, 0, 3))
+        return Q, phi
 
     def forward(self, genes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Posed heads, tails and frames of every bone for a population.
@@ -181,14 +204,9 @@ class PoseModel:
         phi = phi[0]
         n, G = self.skeleton.n_bones, x.size
         # World axis of every (bone, gene) entry, in group order.
-        axes = np.empty((len(self._gene_bone), 3))
-        row, prow = 0, 0
-        for grp in self.figure.groups:
-            m, k = grp.bounds.shape[0], len(grp.bones)
-            w = frames[grp.bones] @ right_jacobian(phi[prow:prow + k]) @ grp.bases / k
-            axes[row:row + k * m] = np.swapaxes(w, 1, 2).reshape(k * m, 3)
-            row += k * m
-            prow += k
+        e = self._e_bone
+        w = frames[e] @ right_jacobian(phi) @ self._e_basis  # (E, 3, 3): columns = genes
+        axes = np.swapaxes(w, 1, 2)[self._e_valid]
         pivots = heads[self._gene_bone]
         r = self.figure.root_bone
         # Root: dG = [J_l e_k]_x G with J_l = J_r^T, so the axes are the rows of J_r.

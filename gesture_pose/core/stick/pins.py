@@ -1,0 +1,129 @@
+"""Pins (Section 3.3): joints attached to the environment or to the body.
+
+A joint is pinned to the environment by casting the eye ray through its drawn node; every
+surface the ray meets is a candidate (the floor or a table under the hand) and the user
+picks one. The joint is then kept on that contact plane (Eq. 10) and finally placed on the
+contact point, lifted along the normal by the body's thickness there (the sole under an
+ankle, the palm under a wrist). A joint pinned to a limb keeps its parameter along the
+limb's stick edge (Eq. 9), measured in the drawing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..camera import Camera
+from ..exceptions import InputError
+from ..skeleton import Skeleton
+from .capsules import Capsules
+from .environment import Environment, Hit
+from .figure import CharacterFigure
+from .graph import StickFigure
+from .objective import EnvPin, LimbPin
+
+
+@dataclass(frozen=True)
+class EnvPinSpec:
+    """A joint pinned to a surface, as stored on the scene.
+
+    Attributes:
+        joint: Stick joint name (``"ankle.L"``, ...).
+        point: Contact point on the surface, shape ``(3,)``.
+        normal: Surface normal at the contact, shape ``(3,)``.
+        object_name: Mesh the surface belongs to (for display).
+    """
+
+    joint: str
+    point: np.ndarray
+    normal: np.ndarray
+    object_name: str = ""
+
+
+@dataclass(frozen=True)
+class LimbPinSpec:
+    """A joint pinned to a stick edge of the body.
+
+    ``"wrist.L"`` on ``("knee.R", "ankle.R")`` at ``s = 0.1`` puts a hand on the knee.
+    """
+
+    joint: str
+    limb: tuple[str, str]
+    s: float
+
+
+def pin_candidates(env: Environment, camera: Camera, pixel: np.ndarray) -> list[Hit]:
+    """Surfaces under a drawn node: every hit of the eye ray through ``pixel``.
+
+    Hits are nearest first; the user chooses when there are several.
+    """
+    origins, dirs = camera.rays(np.asarray(pixel, float).reshape(1, 2))
+    return env.raycast(origins[0], dirs[0])
+
+
+def limb_parameter(stick: StickFigure, joint: str, limb: tuple[str, str]) -> float:
+    """Parameter in ``[0, 1]`` of the drawn node ``joint`` along the drawn edge ``limb``."""
+    names = stick.joint_names
+    for n in (joint, *limb):
+        if n not in names or not stick.present[names.index(n)]:
+            raise InputError(f"Cannot pin to '{n}': that joint is not in the drawing.")
+    p = stick.points[names.index(joint)]
+    a, b = stick.points[names.index(limb[0])], stick.points[names.index(limb[1])]
+    d = b - a
+    return float(np.clip((p - a) @ d / max(d @ d, 1e-12), 0.0, 1.0))
+
+
+def pin_offsets(figure: CharacterFigure, skeleton: Skeleton, caps: Capsules,
+                vertices: np.ndarray | None = None,
+                weights: np.ndarray | None = None) -> np.ndarray:
+    """Distance from each stick joint to the skin it rests on, world units, ``(J,)``.
+
+    For a joint whose bone has children below it along up (an ankle over its foot) it is
+    the rest height of the joint above the lowest skin point of those bones; otherwise the
+    capsule radius of the joint's bone.
+    """
+    up = figure.up
+    radius = np.zeros(skeleton.n_bones)
+    radius[caps.bones] = caps.radii
+    out = np.zeros(figure.n_joints)
+    for j in range(figure.n_joints):
+        b = int(figure.joint_bones[j])
+        p = (skeleton.rest_tails if figure.joint_at_tail[j] else skeleton.rest_heads)[b]
+        below = skeleton.descendants(b) if not figure.joint_at_tail[j] else np.array([b])
+        if vertices is not None and weights is not None and len(vertices):
+            own = np.isin(np.argmax(weights, 1), below)
+            low = float(np.min(vertices[own] @ up)) if np.any(own) else None
+        else:
+            low = None
+        if low is None:
+            ends = np.concatenate([skeleton.rest_heads[below], skeleton.rest_tails[below]])
+            rr = np.concatenate([radius[below], radius[below]])
+            low = float(np.min(ends @ up - rr))
+        out[j] = max(float(p @ up) - low, radius[b])
+    return out
+
+
+def resolve_pins(figure: CharacterFigure, stick: StickFigure,
+                 env_specs: tuple[EnvPinSpec, ...], limb_specs: tuple[LimbPinSpec, ...],
+                 offsets: np.ndarray) -> tuple[tuple[EnvPin, ...], tuple[LimbPin, ...]]:
+    """Turn stored pins into objective pins (joint indices, lifted targets).
+
+    Raises:
+        InputError: A pin names a joint the character does not have.
+    """
+    def index(name):
+        if name not in figure.joint_names:
+            raise InputError(f"Pinned joint '{name}' is not a stick joint; use one of "
+                             f"{list(figure.joint_names)}.")
+        return figure.joint(name)
+
+    env = []
+    for spec in env_specs:
+        j = index(spec.joint)
+        n = np.asarray(spec.normal, float)
+        n = n / max(np.linalg.norm(n), 1e-12)
+        env.append(EnvPin(j, np.asarray(spec.point, float) + n * offsets[j], n))
+    limbs = tuple(LimbPin(index(s.joint), (index(s.limb[0]), index(s.limb[1])), float(s.s))
+                  for s in limb_specs)
+    return tuple(env), limbs

@@ -1,0 +1,425 @@
+"""Stick figure -> 3D poses: the whole pipeline of Lin et al. (2012), Sections 4.1-4.3.
+
+1. Match the drawing to the character's stick joints (:mod:`.graph`).
+2. Place the root: the sit location along the pelvis' eye ray (Section 4.1.2) when the
+   environment offers a seat, otherwise the depth at which the drawing has the
+   character's size (or the depth of the pinned contacts).
+3. Normalize the drawing (Section 4.1.3).
+4. Genetic search over the pose genes (population 1024), then L-BFGS-B refinement of
+   several distinct good individuals with the collision energy (Eq. 11).
+5. Per suggestion: hands and feet resting on the environment are turned to a
+   collision-free orientation and pinned joints are placed exactly on their targets.
+
+Deterministic for a given seed.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..camera import Camera
+from ..exceptions import InputError, SolverError
+from ..rotations import exp_map, log_map, normalize, rotation_between
+from ..skeleton import Pose, Skeleton
+from .capsules import bone_masses, capsules_from_mesh
+from .environment import Environment, Seat, distance_grid, find_seat
+from .figure import CharacterFigure, humanoid_figure
+from .genetic import GAConfig, genetic_search
+from .graph import SNAP_RADIUS, StickFigure, stick_figure_from_strokes
+from .kinematics import PoseModel
+from .lifting import lift_population
+from .normalize import drawing_scale, normalize_figure
+from .objective import StickObjective, Weights
+from .pins import EnvPinSpec, LimbPinSpec, pin_offsets, resolve_pins
+from .refine import place_joints, refine
+
+
+@dataclass(frozen=True)
+class StickInput:
+    """Everything one solve needs.
+
+    Attributes:
+        skeleton: Rest skeleton (world space).
+        camera: The view the figure was drawn in.
+        strokes: Drawn strokes in pixels, each ``(n_i, 2)`` (ignored when ``stick`` given).
+        stick: An already matched (e.g. edited) drawing, or None.
+        environment: Meshes to sit on and avoid, or None.
+        mesh_vertices: Rest skin vertices ``(V, 3)`` (capsules, masses), or None.
+        mesh_weights: Skin weights ``(V, n)``, or None.
+        ik_limits: Rig IK limits ``(n, 3, 2)`` (NaN = unlimited), or None.
+        base_pose: Pose of the bones the solver does not move (rest when None).
+        env_pins: Joints pinned to surfaces.
+        limb_pins: Joints pinned to the body.
+        seed: Random seed.
+        n_suggestions: Distinct solutions to return.
+        snap_radius: Node snapping radius, pixels.
+        facing: ``"front"`` or ``"back"`` (left/right sign test).
+        use_contact: Use a drawn contact dot rather than the pelvis for the sit location.
+        ga: Genetic search settings.
+        weights: Objective weights.
+        refine_iterations: L-BFGS-B iterations for each suggestion's final refinement.
+    """
+
+    skeleton: Skeleton
+    camera: Camera
+    strokes: tuple[np.ndarray, ...] = ()
+    stick: StickFigure | None = None
+    environment: Environment | None = None
+    mesh_vertices: np.ndarray | None = None
+    mesh_weights: np.ndarray | None = None
+    ik_limits: np.ndarray | None = None
+    base_pose: Pose | None = None
+    env_pins: tuple[EnvPinSpec, ...] = ()
+    limb_pins: tuple[LimbPinSpec, ...] = ()
+    seed: int = 0
+    n_suggestions: int = 3
+    snap_radius: float = SNAP_RADIUS
+    facing: str = "front"
+    use_contact: bool = False
+    ga: GAConfig = field(default_factory=GAConfig)
+    weights: Weights = field(default_factory=Weights)
+    refine_iterations: int = 250
+
+
+@dataclass(frozen=True)
+class Suggestion:
+    """One solution.
+
+    Attributes:
+        pose: Local rotations and translations of every bone.
+        genes: Gene vector, shape ``(G,)``.
+        energy: Objective value.
+        terms: Unweighted energy terms.
+        joints: World stick joint positions, shape ``(J, 3)``.
+        pin_residuals: Distance of each environment pin from its target, ``(k,)``.
+    """
+
+    pose: Pose
+    genes: np.ndarray
+    energy: float
+    terms: dict
+    joints: np.ndarray
+    pin_residuals: np.ndarray
+
+
+@dataclass(frozen=True)
+class StickResult:
+    """Suggestions (best first) and diagnostics.
+
+    Attributes:
+        suggestions: Distinct solutions, best first.
+        stick: The matched, normalized drawing.
+        figure: The character's stick model.
+        seat: The sit location, or None (standing, lying...).
+        root_estimate: Initial root position, shape ``(3,)``.
+        scale_factor: Normalization factor applied to the drawing.
+        generations: Genetic generations run.
+        refine_iterations: L-BFGS-B iterations per refined candidate.
+        timings: Seconds per stage.
+        warnings: Things the user should know (ambiguous sides, unreachable pins).
+    """
+
+    suggestions: tuple[Suggestion, ...]
+    stick: StickFigure
+    figure: CharacterFigure
+    seat: Seat | None
+    root_estimate: np.ndarray
+    scale_factor: float
+    generations: int
+    refine_iterations: tuple[int, ...]
+    timings: dict
+    warnings: tuple[str, ...]
+
+
+def _edge_lengths(figure: CharacterFigure, skeleton: Skeleton) -> np.ndarray:
+    """Rest 3D length of each stick edge indexed by its child joint, ``(J,)``."""
+    pos = figure.joint_positions(skeleton.rest_heads, skeleton.rest_tails)
+    out = np.zeros(figure.n_joints)
+    child = np.flatnonzero(figure.joint_parents >= 0)
+    out[child] = np.linalg.norm(pos[child] - pos[figure.joint_parents[child]], axis=1)
+    return out
+
+
+def _depth_for_scale(camera: Camera, ppu: float, pixel: np.ndarray) -> float:
+    """View depth at which the image scale is ``ppu`` pixels per unit."""
+    if not camera.is_perspective:
+        return float(camera.depth(camera.rays(pixel[None])[0])[0] + 5.0)
+    d0 = 5.0
+    return d0 * camera.pixels_per_unit(d0) / ppu
+
+
+def _initial_population(model: PoseModel, bounds: np.ndarray, n: int, stick: StickFigure,
+                        camera: Camera, root_center: np.ndarray, facing: str,
+                        rng: np.random.Generator) -> np.ndarray:
+    """Random individuals whose root orientation agrees with the drawn spine."""
+    fig, sk = model.figure, model.skeleton
+    G = bounds.shape[0]
+    pop = bounds[:, 0] + rng.random((n, G)) * (bounds[:, 1] - bounds[:, 0])
+    pop[:, :3] = root_center + rng.normal(scale=0.05, size=(n, 3))
+    rest = fig.joint_positions(sk.rest_heads, sk.rest_tails)
+    spine_rest = normalize(rest[fig.joint("neck")] - rest[fig.joint("pelvis")])
+    s2 = stick.points[fig.joint("neck")] - stick.points[fig.joint("pelvis")]
+    s2 = s2 / max(np.linalg.norm(s2), 1e-9)
+    V = camera.view_matrix[:3, :3]
+    right, up, back = V[0], V[1], V[2]
+    z = rng.normal(scale=0.6, size=n)
+    d = normalize(s2[0] * right + s2[1] * up + z[:, None] * back)
+    G0 = rotation_between(spine_rest, d)
+    fwd = G0 @ fig.forward
+    want = back if facing == "front" else -back  # towards the viewer
+    want = normalize(want - d * (d @ want)[:, None])
+    fwd = normalize(fwd - d * np.sum(fwd * d, 1)[:, None])
+    psi = np.arctan2(np.sum(np.cross(fwd, want) * d, 1), np.sum(fwd * want, 1))
+    psi += rng.normal(scale=0.5, size=n)
+    wild = rng.random(n) < 0.2
+    psi[wild] = rng.uniform(-np.pi, np.pi, wild.sum())
+    R = exp_map(d * psi[:, None]) @ G0
+    pop[:, 3:6] = log_map(R)
+    pop = np.clip(pop, bounds[:, 0], bounds[:, 1])
+    return lift_population(model, pop, bounds, stick, camera, rng)
+
+
+def _distinct(joints: np.ndarray, order: np.ndarray, k: int, min_dist: float) -> list[int]:
+    """Greedy pick of up to ``k`` indices whose mean joint distances exceed ``min_dist``."""
+    chosen: list[int] = []
+    for i in order:
+        if all(np.mean(np.linalg.norm(joints[i] - joints[c], axis=1)) > min_dist
+               for c in chosen):
+            chosen.append(int(i))
+        if len(chosen) == k:
+            break
+    return chosen
+
+
+def _chain_genes(model: PoseModel, joint: int) -> np.ndarray:
+    """Genes of the limb groups above a stick joint (spine and root excluded)."""
+    fig, sk = model.figure, model.skeleton
+    b = int(fig.joint_bones[joint])
+    above = set(sk.ancestors(b)) if fig.joint_at_tail[joint] else set(sk.ancestors(b)[1:])
+    genes, start = [], 6
+    for g in fig.groups:
+        m = g.bounds.shape[0]
+        if g.name not in ("spine", "head") and any(int(x) in above for x in g.bones):
+            genes += range(start, start + m)
+        start += m
+    return np.array(genes, int)
+
+
+def _end_group_genes(model: PoseModel, joint: int) -> np.ndarray:
+    """Genes of the group of the bone starting at a stick joint (foot at an ankle)."""
+    fig, start = model.figure, 6
+    b = int(fig.joint_bones[joint])
+    for g in fig.groups:
+        m = g.bounds.shape[0]
+        if not fig.joint_at_tail[joint] and b in g.bones:
+            return np.arange(start, start + m)
+        start += m
+    return np.zeros(0, int)
+
+
+def solve_stick(inp: StickInput) -> StickResult:
+    """Pose the character from a drawn stick figure.
+
+    Args:
+        inp: The problem.
+
+    Returns:
+        Distinct suggestions, best first, with diagnostics.
+
+    Raises:
+        InputError: The drawing does not match the character, or bad pins.
+        SolverError: No finite solution was found.
+    """
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    sk, cam = inp.skeleton, inp.camera
+    figure = humanoid_figure(sk, inp.ik_limits)
+    stick = inp.stick or stick_figure_from_strokes(inp.strokes, figure, inp.snap_radius,
+                                                   inp.facing)
+    warnings = [f"Left and right {p} look alike from this view: use Swap Sides if they are "
+                "wrong." for p in stick.ambiguous_sides]
+    base = inp.base_pose or Pose.identity(sk.n_bones)
+    model = PoseModel(sk, figure, base)
+    caps = capsules_from_mesh(sk, inp.mesh_vertices, inp.mesh_weights)
+    offsets = pin_offsets(figure, sk, caps, inp.mesh_vertices, inp.mesh_weights)
+    env_pins, limb_pins = resolve_pins(figure, stick, inp.env_pins, inp.limb_pins, offsets)
+    up = figure.up
+    height = float(np.ptp(np.concatenate([sk.rest_heads, sk.rest_tails]) @ up))
+    lengths = _edge_lengths(figure, sk)
+    rest_joints = figure.joint_positions(sk.rest_heads, sk.rest_tails)
+    pelvis_j = figure.joint("pelvis")
+    base_root = sk.forward(base).heads[figure.root_bone]
+    timings["setup"] = time.perf_counter() - t_start
+
+    # Root placement: seat, pinned contacts or drawing scale.
+    t0 = time.perf_counter()
+    env = inp.environment
+    seat = None
+    radius = np.zeros(sk.n_bones)
+    radius[caps.bones] = caps.radii
+    hip_r = float(max(radius[sk.children(figure.root_bone)].max(initial=0.0),
+                      radius[figure.root_bone]))
+    knee_h = float(rest_joints[figure.joint("knee.L")] @ up - np.min(
+        np.concatenate([sk.rest_heads, sk.rest_tails]) @ up))
+    seat_pixel = stick.points[pelvis_j]
+    if inp.use_contact and len(stick.contacts):
+        seat_pixel = stick.contacts[0]
+    ppu = drawing_scale(stick, lengths)
+    depth_guess = _depth_for_scale(cam, ppu, stick.points[pelvis_j])
+    root_range = 0.3 * height
+    grid = None
+    if env is not None and len(env.triangles):
+        o, d = cam.rays(seat_pixel[None])
+        probe = cam.unproject_at_depth(stick.points[pelvis_j][None], depth_guess)[0]
+        dist = float(np.linalg.norm(probe - o[0]))
+        grid = distance_grid(env, probe, 1.0 * height)
+        seat = find_seat(env, o[0], d[0], knee_h, hip_r, grid, near=0.5 * dist,
+                         far=1.6 * dist)
+    if seat is not None:
+        root = seat.point + up * hip_r
+        root_range = 0.12 * height
+    else:
+        depth = depth_guess
+        if env_pins:
+            depth = float(np.mean(cam.depth(np.array([p.target for p in env_pins]))))
+        root = cam.unproject_at_depth(stick.points[pelvis_j][None], depth)[0]
+        if env is not None and len(env.triangles) and np.linalg.norm(root - probe) > 0.3:
+            grid = distance_grid(env, root, 1.0 * height)
+    ppu_root = cam.pixels_per_unit(float(cam.depth(root[None])[0]))
+    stick, factor = normalize_figure(stick, lengths, ppu_root, pelvis_j)
+    if factor < 1.0:
+        warnings.append(f"The drawing was scaled by {factor:.2f}: some bones were drawn "
+                        "longer than the character's.")
+    support = [p.target - p.normal * offsets[p.joint] for p in env_pins
+               if p.normal @ up > np.cos(np.radians(30.0))]
+    if seat is not None:
+        side = normalize(np.cross(up, figure.forward))
+        support += [seat.point + side * hip_r, seat.point - side * hip_r]
+    env_caps = np.ones(len(caps.bones), bool)
+    for p in env_pins:
+        after = sk.descendants(int(figure.joint_bones[p.joint]))
+        if not figure.joint_at_tail[p.joint]:
+            env_caps &= ~np.isin(caps.bones, after)
+    objective = StickObjective(
+        model=model, camera=cam, stick=stick, height=height,
+        masses=bone_masses(sk, caps), capsules=caps, env_capsules=env_caps, grid=grid,
+        support=np.array(support).reshape(-1, 3), env_pins=env_pins, limb_pins=limb_pins,
+        weights=inp.weights, up=up)
+    bounds = model.bounds(root - base_root, root_range)
+    timings["placement"] = time.perf_counter() - t0
+
+    # Genetic search, then refinement of distinct candidates.
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(inp.seed)
+    init = _initial_population(model, bounds, inp.ga.population, stick, cam,
+                               root - base_root, inp.facing, rng)
+    ga = genetic_search(lambda X: objective.evaluate(X, collision=False)[0], bounds, init,
+                        rng, inp.ga)
+    timings["genetic"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    heads, tails, _ = model.forward(ga.population[:256])
+    joints = figure.joint_positions(heads, tails)
+    picks = _distinct(joints, np.arange(len(joints)), inp.n_suggestions + 2, 0.04 * height)
+    # Short refinement of every distinct candidate, then a long one of the best few.
+    first = [refine(objective, ga.population[i], bounds, max_iterations=40) for i in picks]
+    order = np.argsort([r.energy for r in first])
+    heads, tails, _ = model.forward(np.array([first[i].x for i in order]))
+    joints = figure.joint_positions(heads, tails)
+    best = [order[k] for k in _distinct(joints, np.arange(len(order)), inp.n_suggestions,
+                                         0.03 * height)]
+    refined = [refine(objective, first[i].x, bounds, max_iterations=inp.refine_iterations)
+               for i in best]
+    timings["refine"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    order = np.argsort([r.energy for r in refined])
+    xs = np.array([refined[i].x for i in order])
+    heads, tails, _ = model.forward(xs)
+    joints = figure.joint_positions(heads, tails)
+    keep = _distinct(joints, np.arange(len(xs)), inp.n_suggestions, 0.03 * height)
+    suggestions = []
+    for i in keep:
+        x = _finish(objective, xs[i], bounds, env_pins, limb_pins)
+        suggestions.append(_suggestion(objective, x, env_pins))
+    suggestions.sort(key=lambda s: s.energy)
+    if not suggestions or not np.isfinite(suggestions[0].energy):
+        raise SolverError("The stick figure solver found no finite solution.",
+                          {"generations": ga.generations})
+    worst = max(float(np.max(s.pin_residuals, initial=0.0)) for s in suggestions[:1])
+    if worst > 0.01:
+        warnings.append(f"A pinned joint is {worst * 100:.0f} cm from its target: it is out "
+                        "of reach of the drawn pose.")
+    timings["finish"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_start
+    return StickResult(tuple(suggestions), stick, figure, seat, root, factor, ga.generations,
+                       tuple(r.iterations for r in first + refined), timings,
+                       tuple(warnings))
+
+
+def _finish(objective: StickObjective, x: np.ndarray, bounds: np.ndarray, env_pins,
+            limb_pins) -> np.ndarray:
+    """Collision-free hands and feet on the environment, then pins placed exactly."""
+    model = objective.model
+    fig = model.figure
+    x = x.copy()
+    # Orientation search for the end bones resting on the environment (foot at an ankle).
+    for pin in env_pins:
+        genes = _end_group_genes(model, pin.joint)
+        if genes.size == 0 or objective.grid is None:
+            continue
+        lo, hi = bounds[genes, 0], bounds[genes, 1]
+        axes = [np.linspace(lo[k], hi[k], 7) for k in range(genes.size)]
+        grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, genes.size)
+        X = np.repeat(x[None], len(grid), 0)
+        X[:, genes] = grid
+        heads, tails, _ = model.forward(X)
+        b = np.array(sorted(set(model.skeleton.descendants(int(fig.joint_bones[pin.joint])))))
+        caps = objective.capsules
+        sel = np.isin(caps.bones, b)
+        pen = np.zeros(len(X))
+        if np.any(sel):
+            u = np.linspace(0, 1, 5)
+            pts = (heads[:, caps.bones[sel], None] * (1 - u)[:, None] +
+                   tails[:, caps.bones[sel], None] * u[:, None])
+            d, _ = objective.grid.sample(pts)
+            pen = np.sum(np.maximum(caps.radii[sel][None, :, None] - d, 0) ** 2, (1, 2))
+        e, _ = objective.evaluate(X, collision=False)
+        score = e + 100.0 * pen / (0.05 * objective.height) ** 2
+        score += 1e-3 * np.sum((grid - x[genes]) ** 2, 1)
+        x = X[int(np.argmin(score))]
+    # Attachment enforcement: pinned joints exactly on their targets (the limbs and,
+    # when several limbs are pinned, the root's translation move).
+    if env_pins:
+        genes = np.unique(np.concatenate([_chain_genes(model, p.joint) for p in env_pins] +
+                                         [np.arange(3)]))
+        x, _ = place_joints(objective, x, bounds, np.array([p.joint for p in env_pins]),
+                            np.array([p.target for p in env_pins]), genes)
+    for pin in limb_pins:
+        heads, tails, _ = model.forward(x[None])
+        J = fig.joint_positions(heads, tails)[0]
+        a, b = pin.limb
+        target = (1 - pin.s) * J[a] + pin.s * J[b]
+        genes = _chain_genes(model, pin.joint)
+        if genes.size:
+            x, _ = place_joints(objective, x, bounds, np.array([pin.joint]), target[None],
+                                genes)
+    return x
+
+
+def _suggestion(objective: StickObjective, x: np.ndarray, env_pins) -> Suggestion:
+    model = objective.model
+    heads, tails, _ = model.forward(x[None])
+    e, terms = objective.evaluate(x[None])
+    joints = model.figure.joint_positions(heads, tails)[0]
+    res = np.array([np.linalg.norm(joints[p.joint] - p.target) for p in env_pins])
+    return Suggestion(model.to_pose(x), x, float(e[0]),
+                      {k: float(v[0]) for k, v in terms.items()}, joints, res)
+
+
+def check_input(inp: StickInput) -> None:
+    """Raise :class:`InputError` for inputs that cannot be solved."""
+    if inp.stick is None and not inp.strokes:
+        raise InputError("No stick figure: draw one in the sketch object first.")

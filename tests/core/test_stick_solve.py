@@ -1,0 +1,159 @@
+"""GA operators' statistics and end-to-end reconstruction on the core humanoid."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gesture_pose.core.camera import Camera
+from gesture_pose.core.skeleton import Pose
+from gesture_pose.core.stick.capsules import capsules_from_mesh
+from gesture_pose.core.stick.edit import drag_node
+from gesture_pose.core.stick.environment import find_seat
+from gesture_pose.core.stick.figure import humanoid_figure
+from gesture_pose.core.stick.genetic import GAConfig, gaussian_mutation, genetic_search, sbx
+from gesture_pose.core.stick.graph import StickFigure
+from gesture_pose.core.stick.kinematics import PoseModel
+from gesture_pose.core.stick.normalize import normalize_figure
+from gesture_pose.core.stick.pins import EnvPinSpec, pin_offsets
+from gesture_pose.core.stick.solve import StickInput, solve_stick
+from tests.core.test_stick_figure import humanoid_skeleton
+from tests.core.test_stick_objective import chair_env
+
+
+def test_sbx_children_keep_the_parents_mean_and_spread_with_eta():
+    rng = np.random.default_rng(0)
+    n, g = 20000, 8
+    a, b = rng.uniform(-1, 1, (n, g)), rng.uniform(-1, 1, (n, g))
+    bounds = np.tile([-10.0, 10.0], (g, 1))
+    c1, c2 = sbx(a, b, bounds, rng, eta=10.0, gene_fraction=0.5, probability=0.7)
+    assert np.allclose(c1 + c2, a + b)  # SBX preserves the mean of each pair
+    changed = ~np.isclose(c1, a)
+    # 0.7 of the pairs, half of their genes.
+    assert abs(changed.mean() - 0.35) < 0.01
+    pairs = changed.any(1).mean()
+    assert abs(pairs - 0.7 * (1 - 0.5**g)) < 0.01
+    spread = np.abs(c1 - c2)[changed] / np.abs(a - b)[changed]
+    _, _, = sbx(a, b, bounds, rng, eta=2.0)
+    c1w, c2w = sbx(a, b, bounds, np.random.default_rng(1), eta=2.0, probability=1.0,
+                   gene_fraction=1.0)
+    wide = np.abs(c1w - c2w) / np.abs(a - b)
+    assert np.median(spread) < np.median(wide)  # larger eta: children nearer the parents
+    assert abs(np.median(spread) - 1.0) < 0.05  # beta's median is 1
+
+
+def test_gaussian_mutation_rate_and_scale():
+    rng = np.random.default_rng(3)
+    x = np.zeros((5000, 10))
+    bounds = np.tile([-5.0, 5.0], (10, 1))
+    y = gaussian_mutation(x, bounds, rng, rate=0.1, scale=0.1)
+    hit = y != 0
+    assert abs(hit.mean() - 0.1) < 0.01
+    assert abs(y[hit].std() - 1.0) < 0.05  # 0.1 of the range 10
+    clipped = gaussian_mutation(x, np.tile([-0.01, 0.01], (10, 1)), rng, 1.0, 10.0)
+    assert np.all(np.abs(clipped) <= 0.01)
+
+
+def test_genetic_search_minimizes_a_shifted_sphere_deterministically():
+    def run(seed):
+        rng = np.random.default_rng(seed)
+        bounds = np.tile([-3.0, 3.0], (6, 1))
+        init = rng.uniform(-3, 3, (256, 6))
+        return genetic_search(lambda X: np.sum((X - 1.2) ** 2, 1), bounds, init, rng,
+                              GAConfig(population=256, max_generations=60, patience=10))
+    a, b = run(5), run(5)
+    assert np.array_equal(a.population, b.population)
+    assert a.energies[0] < 1e-2
+    assert np.all(np.diff(a.history) <= 1e-15)  # elitist merge never loses the best
+
+
+def _stand_problem(noise=0.0, seed=0):
+    sk = humanoid_skeleton()
+    fig = humanoid_figure(sk)
+    model = PoseModel(sk, fig, Pose.identity(sk.n_bones))
+    x = np.zeros(model.n_genes)
+    start = 6
+    for g in fig.groups:
+        m = g.bounds.shape[0]
+        val = {"upper_arm.L": [30, 0, 0], "forearm.L": [50], "upper_arm.R": [-20, 0, 20],
+               "thigh.L": [-20, 0, 0], "shin.L": [25]}.get(g.name)
+        if val is not None:
+            x[start:start + m] = np.radians(val)
+        start += m
+    x[:3] = [0.0, -1.0, 0.0]
+    heads, tails, _ = model.forward(x[None])
+    joints = fig.joint_positions(heads, tails)[0]
+    cam = Camera.look_at([2.0, -4.5, 1.4], [0, -0.3, 0.8], width=1000, height=800)
+    pts = cam.project(joints) + np.random.default_rng(seed).normal(scale=noise, size=(15, 2))
+    present = ~fig.optional
+    pts[~present] = np.nan
+    stick = StickFigure(fig.joint_names, pts, present, fig.joint_parents, np.zeros((0, 2)))
+    offs = pin_offsets(fig, sk, capsules_from_mesh(sk))
+    pins = tuple(EnvPinSpec(a, joints[fig.joint(a)] - [0, 0, offs[fig.joint(a)]],
+                            np.array([0, 0, 1.0]), "floor") for a in ("ankle.L", "ankle.R"))
+    return sk, fig, cam, stick, pins, joints
+
+
+def test_reconstructs_a_standing_pose_with_feet_pinned():
+    sk, fig, cam, stick, pins, truth = _stand_problem()
+    inp = StickInput(sk, cam, stick=stick, environment=chair_env(), env_pins=pins, seed=3,
+                     n_suggestions=2, ga=GAConfig(population=384, max_generations=10),
+                     refine_iterations=100)
+    res = solve_stick(inp)
+    body = [fig.joint(n) for n in ("pelvis", "neck", "head", "knee.L", "ankle.L", "knee.R",
+                                   "ankle.R")]
+    best = res.suggestions[0]
+    # Pinned legs and the torso are recovered (the arms' depth is ambiguous in one view:
+    # the suggestions hold the alternatives).
+    assert np.linalg.norm(best.joints[body] - truth[body], axis=1).mean() < 0.03
+    errors = [np.linalg.norm(s.joints - truth, axis=1)[stick.present].mean()
+              for s in res.suggestions]
+    assert min(errors) < 0.12
+    for s in res.suggestions:
+        assert np.all(s.pin_residuals < 1e-6)
+    assert len(res.suggestions) >= 2
+    assert [s.energy for s in res.suggestions] == sorted(s.energy for s in res.suggestions)
+    again = solve_stick(inp)
+    assert np.array_equal(again.suggestions[0].genes, res.suggestions[0].genes)
+
+
+def test_seat_found_behind_the_drawn_hips():
+    env = chair_env()
+    cam = Camera.look_at([2.0, -4.5, 1.4], [0, -0.3, 0.8], width=1000, height=800)
+    hips = np.array([0.0, 0.2, 0.45 + 0.06])
+    o, d = cam.rays(cam.project(hips[None]))
+    seat = find_seat(env, o[0], d[0], seated_hip_height=0.5, hip_radius=0.06,
+                     near=1.0, far=8.0)
+    assert seat is not None and env.object_names[seat.object_index] == "chair"
+    assert np.isclose(seat.point[2], 0.45)
+    assert np.linalg.norm(seat.point[:2] - hips[:2]) < 0.15
+    assert seat.centerness > 0.5
+    # A seat too high for the character (knee height 0.2 m) is not a seat.
+    assert find_seat(env, o[0], d[0], 0.2, 0.06, near=1.0, far=8.0) is None
+
+
+def test_normalization_scales_overlong_drawings():
+    sk, fig, cam, stick, _, _ = _stand_problem()
+    lengths = np.full(fig.n_joints, 0.1)
+    scaled, factor = normalize_figure(stick, lengths, pixels_per_unit=100.0, tolerance=1.0)
+    e = scaled.drawn_edges()
+    drawn = np.linalg.norm(scaled.points[e[:, 1]] - scaled.points[e[:, 0]], axis=1)
+    assert factor < 1 and np.isclose(drawn.max(), 10.0)
+    assert np.allclose(scaled.points[0], stick.points[0])
+    same, one = normalize_figure(stick, np.full(fig.n_joints, 10.0), 100.0)
+    assert one == 1.0 and same is stick
+
+
+def test_drag_local_and_global():
+    sk, fig, cam, stick, _, _ = _stand_problem()
+    wrist = fig.joint("wrist.L")
+    local = drag_node(stick, wrist, stick.points[wrist] + [5.0, 0.0], global_radius=30.0)
+    moved = np.flatnonzero(np.any(np.abs(local.points - stick.points) > 1e-9, axis=1))
+    assert moved.tolist() == [wrist]
+    far = stick.points[wrist] + [80.0, 60.0]
+    glob = drag_node(stick, wrist, far, global_radius=30.0)
+    assert np.allclose(glob.points[wrist], far, atol=1e-6)
+    # The chain above moves (not the pelvis), the other limbs follow rigidly.
+    assert np.allclose(glob.points[fig.joint("pelvis")], stick.points[fig.joint("pelvis")])
+    assert not np.allclose(glob.points[fig.joint("elbow.L")], stick.points[fig.joint("elbow.L")])
+    shift = glob.points[fig.joint("neck")] - stick.points[fig.joint("neck")]
+    assert np.allclose(glob.points[fig.joint("head")] - stick.points[fig.joint("head")], shift)
