@@ -193,3 +193,17 @@ def test_resampling_is_exact_under_skinning() -> None:
     yr = resample_rigged(y, mat)
     posed = pose_bones(skel, in_plane_pose(skel, np.linspace(-0.5, 0.5, 6)))
     np.testing.assert_allclose(skin(posed, yr), mat @ skin(posed, y), atol=1e-12)
+
+
+def test_closest_point_on_polyline_matches_brute_force() -> None:
+    from gesture_pose.core.abstraction.correspondences import _closest_on_polyline
+
+    rng = np.random.default_rng(11)
+    t = np.linspace(0, 3 * np.pi, 80)
+    poly = np.stack([60 * t, 80 * np.sin(t)], axis=1)
+    queries = rng.uniform([-20, -120], [600, 120], size=(300, 2))
+    seg, frac = _closest_on_polyline(queries, poly)
+    got = poly[seg] + frac[:, None] * (poly[seg + 1] - poly[seg])
+    dense = np.concatenate([np.linspace(poly[i], poly[i + 1], 200) for i in range(79)])
+    brute = np.linalg.norm(queries[:, None] - dense[None], axis=2).min(axis=1)
+    np.testing.assert_allclose(np.linalg.norm(got - queries, axis=1), brute, atol=0.05)

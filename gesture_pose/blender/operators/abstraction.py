@@ -53,6 +53,8 @@ from ..write_pose import apply_pose
 CORRESPONDENCE_ITEMS = [
     ("IN_ORDER", "In Order", "Match along the drawing direction, by arc length"),
     ("CLOSEST", "Closest Point", "Match each point to the closest point of the other curve"),
+    ("IN_ORDER_CLOSEST", "In Order, then Closest",
+     "In order first, then closest point from there (for curves that stretch)"),
 ]
 ASSIGNMENT_ITEMS = [
     ("PROXIMITY", "Proximity", "Each stroke goes to the nearest abstraction curve"),

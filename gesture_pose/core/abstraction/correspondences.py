@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
 
 from ..exceptions import InputError
 from ..stroke import Stroke
@@ -30,6 +31,8 @@ from .curves import CurveLayout, polyline_arclength
 
 IN_ORDER = "IN_ORDER"
 CLOSEST = "CLOSEST"
+#: In-order ICP followed by closest-point ICP (see :func:`.solver.solve_abstraction`).
+IN_ORDER_CLOSEST = "IN_ORDER_CLOSEST"
 BY_ORDER = "ORDER"
 BY_PROXIMITY = "PROXIMITY"
 
@@ -55,25 +58,36 @@ class Correspondences:
         return np.asarray(self.blend @ pixels) - self.targets
 
 
-def _closest_on_polyline(queries: np.ndarray, poly: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _closest_on_polyline(queries: np.ndarray, poly: np.ndarray,
+                         candidates: int = 3) -> tuple[np.ndarray, np.ndarray]:
     """Closest points of a polyline to queries.
+
+    Only the segments next to the ``candidates`` nearest polyline vertices of each query
+    are tested (a KD-tree query), which finds the exact closest point unless a farther
+    vertex has a much longer segment passing closer; for the densely sampled strokes and
+    curves here that does not happen.
 
     Args:
         queries: Points, shape ``(q, 2)``.
         poly: Polyline, shape ``(k, 2)``, ``k >= 2``.
+        candidates: Nearest vertices whose adjacent segments are tested.
 
     Returns:
         ``(segment (q,), fraction (q,))``: the closest point is
         ``poly[seg] + frac (poly[seg + 1] - poly[seg])``.
     """
-    a, b = poly[:-1], poly[1:]
-    ab = b - a
-    denom = np.maximum(np.sum(ab * ab, axis=1), 1e-18)
-    t = np.clip(np.einsum("qsd,sd->qs", queries[:, None, :] - a[None], ab) / denom, 0.0, 1.0)
-    closest = a[None] + t[..., None] * ab[None]
-    d2 = np.sum((closest - queries[:, None, :]) ** 2, axis=2)
-    seg = np.argmin(d2, axis=1)
-    return seg, t[np.arange(len(queries)), seg]
+    n_seg = len(poly) - 1
+    k = min(candidates, len(poly))
+    _, near = cKDTree(poly).query(queries, k=k)
+    near = near.reshape(len(queries), k)
+    segs = np.clip(np.concatenate([near - 1, near], axis=1), 0, n_seg - 1)  # (q, 2k)
+    a, ab = poly[segs], poly[segs + 1] - poly[segs]
+    denom = np.maximum(np.sum(ab * ab, axis=2), 1e-18)
+    t = np.clip(np.sum((queries[:, None, :] - a) * ab, axis=2) / denom, 0.0, 1.0)
+    d2 = np.sum((a + t[..., None] * ab - queries[:, None, :]) ** 2, axis=2)
+    best = np.argmin(d2, axis=1)
+    rows = np.arange(len(queries))
+    return segs[rows, best], t[rows, best]
 
 
 def polyline_at(stroke: Stroke, s: np.ndarray) -> np.ndarray:

@@ -17,7 +17,7 @@ vanishes, or after ``max_iterations``.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
@@ -28,7 +28,9 @@ from ..stroke import Stroke
 from .coarsening import Coarsening
 from .correspondences import (
     BY_PROXIMITY,
+    CLOSEST,
     IN_ORDER,
+    IN_ORDER_CLOSEST,
     Correspondences,
     assign_strokes,
     build_correspondences,
@@ -67,7 +69,8 @@ class SolveOptions:
     """Solver settings; the defaults are the paper's.
 
     Attributes:
-        correspondence: ``"IN_ORDER"`` or ``"CLOSEST"``.
+        correspondence: ``"IN_ORDER"``, ``"CLOSEST"`` or ``"IN_ORDER_CLOSEST"`` (in order,
+            then closest point from its result).
         assignment: Strokes to curves by ``"ORDER"`` or ``"PROXIMITY"``.
         lambda_pose: Weight of ``W_pose`` (Eq. 8).
         lambda_plane: Weight of ``W_plane`` (Eq. 9).
@@ -198,6 +201,11 @@ def solve_abstraction(problem: AbstractionProblem,
                       options: SolveOptions | None = None) -> SolveResult:
     """Pose the rig so that its abstraction's projection matches the strokes.
 
+    With ``correspondence="IN_ORDER_CLOSEST"`` an in-order solve is followed by a
+    closest-point solve from its result (for curves that stretch, where in-order pairs
+    slide); the result then reports the iterations and time of both and the residual of
+    the second.
+
     Args:
         problem: The problem (see :class:`AbstractionProblem`).
         options: Settings (the paper's defaults when None).
@@ -210,6 +218,24 @@ def solve_abstraction(problem: AbstractionProblem,
         SolverError: An update QP could not be solved.
     """
     opt = SolveOptions() if options is None else options
+    if opt.correspondence != IN_ORDER_CLOSEST:
+        return _solve_phase(problem, opt)
+    first = _solve_phase(problem, replace(opt, correspondence=IN_ORDER))
+    second = _solve_phase(replace(problem, start=first.pose),
+                          replace(opt, correspondence=CLOSEST))
+    return replace(
+        second, iterations=first.iterations + second.iterations,
+        initial_residual_px=first.initial_residual_px,
+        energies=first.energies + second.energies,
+        residuals_px=first.residuals_px + second.residuals_px,
+        seconds=first.seconds + second.seconds,
+        iteration_seconds=first.iteration_seconds + second.iteration_seconds,
+        qp_iterations=first.qp_iterations + second.qp_iterations,
+        warnings=tuple(dict.fromkeys(first.warnings + second.warnings)))
+
+
+def _solve_phase(problem: AbstractionProblem, opt: SolveOptions) -> SolveResult:
+    """One ICP solve with one correspondence procedure (see :func:`solve_abstraction`)."""
     t_start = time.perf_counter()
     rig, cam, layout, coarse = problem.rig, problem.camera, problem.layout, problem.coarse
     space = rig.space
