@@ -63,8 +63,25 @@ def _scene(kind: str, direction, ortho: bool = False):
     return arm, camera_from_object(cam_obj, bpy.context.scene)
 
 
+def demo_rotations(arm) -> dict:
+    """A humanoid pose with cues in and out of the view plane.
+
+    The right arm waves, the left forearm points at a front camera and the left knee is
+    raised towards it.
+    """
+    from sample_scenes import builders
+
+    bone = arm.data.bones["forearm.L"]
+    d = np.array(bone.tail_local - bone.head_local)
+    axis = np.cross(d / np.linalg.norm(d), [0.0, -1.0, 0.0])
+    rot = dict(builders.HUMANOID_POSES["wave"])
+    rot.update({"forearm.L": (tuple(axis), 70.0), "thigh.L": ((1.0, 0.0, 0.0), -50.0),
+                "shin.L": ((1.0, 0.0, 0.0), 60.0)})
+    return rot
+
+
 def _truth(arm, kind: str, pose_name: str):
-    """Read the bind pose, pose the character, read the truth, and go back to rest."""
+    """Read the bind pose, pose the character (leaving it posed) and read the truth."""
     import bpy
 
     from gesture_pose.blender.read_armature import read_armature
@@ -72,7 +89,8 @@ def _truth(arm, kind: str, pose_name: str):
 
     bind = read_armature(arm)
     poses = builders.HUMANOID_POSES if kind == "humanoid" else builders.QUADRUPED_POSES
-    builders.apply_rotations(arm, poses[pose_name])
+    builders.apply_rotations(arm, demo_rotations(arm) if pose_name == "demo"
+                             else poses[pose_name])
     bpy.context.view_layer.update()
     truth = read_armature(arm)
     return bind, truth
@@ -160,7 +178,8 @@ def head_skeleton(skeleton, heads_rest: np.ndarray):
 
     glTF has no bone tails (the importer gives every bone a token length), so the joints
     are the bones' heads: one bone from each major bone's nearest major ancestor's head to
-    its own head.
+    its own head. The first of them (the lower spine) is the root; the other bones
+    leaving the hips hang off it.
 
     Returns:
         ``(skeleton, ends)``: the head skeleton and, per bone, the full-skeleton indices of
@@ -180,6 +199,7 @@ def head_skeleton(skeleton, heads_rest: np.ndarray):
     ends = np.array([[anc[b], b] for b in order])
     h, t = heads_rest[ends[:, 0]], heads_rest[ends[:, 1]]
     parents = np.array([seg.get(anc[b], -1) for b in order])
+    parents[1:][parents[1:] < 0] = 0
     frames = rotation_between(np.array([0.0, 1.0, 0.0]), t - h)
     n = len(order)
     connected = np.array([p >= 0 and ends[p, 1] == ends[k, 0] for k, p in enumerate(parents)])
@@ -296,7 +316,7 @@ def _save_row(images: list[np.ndarray], path: Path) -> None:
     bpy.data.images.remove(img)
 
 
-def pictures(out_dir: Path, pose_name: str = "step") -> list[Path]:
+def pictures(out_dir: Path, pose_name: str = "demo") -> list[Path]:
     """Render the documentation pictures of the 3D step headless (Workbench, 400 px).
 
     ``gesture3d_before_after.png``: front view of the bind pose under the traced drawing of

@@ -88,6 +88,8 @@ class QPResult:
     """The solution of one :class:`QPProblem`.
 
     Attributes:
+        status: OSQP's status (``"solved"``, ``"solved inaccurate"``, or ``"maximum
+            iterations reached"`` with a feasible iterate).
         delta: Twists, shape ``(m, 3)``, radians.
         slacks: Slack values, shape ``(n_slack,)``.
         objective: Optimal QP cost including the constant: ``alpha`` times the predicted
@@ -99,6 +101,7 @@ class QPResult:
         active: Labels of inequality rows at a bound with a non-zero multiplier.
     """
 
+    status: str
     delta: np.ndarray
     slacks: np.ndarray
     objective: float
@@ -112,7 +115,7 @@ class QPResult:
 def build_qp(terms: list[LinearTerm], constraints: list[LinearConstraint],
              dof: list[LinearConstraint], x0: np.ndarray, G: np.ndarray, *, alpha: float,
              kappa: float, soften: bool = False, rho: float = 1e7,
-             eps: float = 1e-3) -> QPProblem:
+             eps: float = 1e-2) -> QPProblem:
     """Assemble the QP of one SQP step.
 
     Args:
@@ -177,14 +180,19 @@ def build_qp(terms: list[LinearTerm], constraints: list[LinearConstraint],
 
 
 def solve_qp(problem: QPProblem, *, eps_abs: float = 1e-6, eps_rel: float = 1e-6,
-             max_iter: int = 20000) -> QPResult:
+             max_iter: int = 10000, feasibility: float = 1e-5) -> QPResult:
     """Solve a :class:`QPProblem` with OSQP.
+
+    An iterate that reached the iteration limit is accepted when it is feasible within
+    ``feasibility`` (a step of the SQP loop need not be optimal, only feasible: the next
+    iteration continues from it).
 
     Args:
         problem: The QP.
         eps_abs: OSQP absolute tolerance.
         eps_rel: OSQP relative tolerance.
         max_iter: OSQP iteration limit.
+        feasibility: Largest primal residual accepted at the iteration limit.
 
     Returns:
         The solution.
@@ -201,9 +209,11 @@ def solve_qp(problem: QPProblem, *, eps_abs: float = 1e-6, eps_rel: float = 1e-6
     res = solver.solve(raise_error=False)
     elapsed = time.perf_counter() - start
     status = str(res.info.status)
-    if res.info.status_val not in (int(osqp.SolverStatus.OSQP_SOLVED),
-                                   int(osqp.SolverStatus.OSQP_SOLVED_INACCURATE)) \
-            or res.x is None or not np.all(np.isfinite(res.x)):
+    ok = res.info.status_val in (int(osqp.SolverStatus.OSQP_SOLVED),
+                                 int(osqp.SolverStatus.OSQP_SOLVED_INACCURATE))
+    ok |= (res.info.status_val == int(osqp.SolverStatus.OSQP_MAX_ITER_REACHED)
+           and res.info.prim_res <= feasibility)
+    if not ok or res.x is None or not np.all(np.isfinite(res.x)):
         raise SolverError(
             f"The depth QP was not solved (OSQP status '{status}').",
             {"status": status, "primal_residual": float(res.info.prim_res),
@@ -218,6 +228,7 @@ def solve_qp(problem: QPProblem, *, eps_abs: float = 1e-6, eps_rel: float = 1e-6
     active = tuple(lab for lab, on in zip(problem.labels, at_bound & inequality
                                           & (np.abs(y) > 1e-9), strict=True) if on)
     return QPResult(
+        status=status,
         delta=z[:problem.n_twist].reshape(-1, 3),
         slacks=z[problem.n_twist:],
         objective=float(res.info.obj_val) + problem.constant,

@@ -373,6 +373,8 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
             sol = solve_qp(problem)
         qp_time += sol.solve_time
         active = sol.active
+        if sol.status != "solved" and not any(w.startswith("Some QP") for w in warnings):
+            warnings.append(f"Some QP steps ended with OSQP status '{sol.status}'.")
         current = twist.apply_twists(skeleton, jm, current, state, sol.delta)
         move = np.abs(G @ sol.delta.ravel()).max() if G.size else 0.0
         if move < opts.tolerance * mean_len:
