@@ -166,11 +166,43 @@ def step_limits(arm: ArmatureData, start: RigPose, use_ik: bool, min_scale: floa
                       max_translation_step=max(0.25 * size, 1e-3))
 
 
-def read_rig_job(op, context, arm_obj) -> RigJob:
-    """Read the armature, its meshes and the parameter choices of operator ``op``."""
+def abstraction_object_names(context, extra=()) -> set[str]:
+    """Names of every object in the "Sketch Abstraction" collections, plus ``extra``."""
+    names = {o.name for c in abstraction_collections(context.scene) for o in c.all_objects}
+    return names | {o.name for o in extra}
+
+
+def without_objects(mesh: MeshData, excluded: set[str]) -> MeshData:
+    """The mesh data without the vertices and triangles of the ``excluded`` objects.
+
+    Raises:
+        InputError: Nothing is left (only abstraction objects deform with the armature).
+    """
+    keep_obj = [i for i, n in enumerate(mesh.object_names) if n not in excluded]
+    if len(keep_obj) == len(mesh.object_names):
+        return mesh
+    if not keep_obj:
+        raise InputError("Only abstraction objects deform with the armature: the character "
+                         "needs a skinned mesh outside the 'Sketch Abstraction' collection.")
+    off = mesh.vertex_offsets
+    keep = np.concatenate([np.arange(off[i], off[i + 1]) for i in keep_obj])
+    remap = np.full(int(off[-1]), -1)
+    remap[keep] = np.arange(len(keep))
+    tris = remap[mesh.triangles]
+    sizes = [int(off[i + 1] - off[i]) for i in keep_obj]
+    return MeshData(tuple(mesh.object_names[i] for i in keep_obj),
+                    np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
+                    mesh.rest_vertices[keep], mesh.deformed_vertices[keep],
+                    tris[np.all(tris >= 0, axis=1)], mesh.weights[keep], mesh.warnings)
+
+
+def read_rig_job(op, context, arm_obj, abstraction_objects=()) -> RigJob:
+    """Read the armature, its meshes (not the abstractions) and the choices of ``op``."""
     arm = read_armature(arm_obj)
     start, warnings = read_rig_pose(arm_obj, arm)
-    mesh = read_skinned_meshes(arm_obj, arm.skeleton, context.evaluated_depsgraph_get())
+    mesh = without_objects(
+        read_skinned_meshes(arm_obj, arm.skeleton, context.evaluated_depsgraph_get()),
+        abstraction_object_names(context, abstraction_objects))
     size = float(np.linalg.norm(np.ptp(mesh.deformed_vertices, axis=0)))
     space = free_space(arm, op.free_rotations, op.free_scales, op.free_translation,
                        scale_collection(arm_obj, arm.names))
@@ -217,8 +249,10 @@ def _report(op, result: SolveResult, written: list[str], seconds: float, path: s
                       f"{result.initial_residual_px:.1f} -> {result.residual_px:.2f} px")
 
 
-def _mesh_objects(arm_obj) -> list:
-    return meshes_of(arm_obj)
+def _mesh_objects(arm_obj, job: RigJob) -> list:
+    """The mesh objects of ``job.mesh``, in its order (for the black-box evaluator)."""
+    by_name = {o.name: o for o in meshes_of(arm_obj)}
+    return [by_name[n] for n in job.mesh.object_names]
 
 
 class GESTUREPOSE_OT_pose_abstraction(_SolverProps, GesturePoseOperatorMixin,
@@ -248,7 +282,7 @@ class GESTUREPOSE_OT_pose_abstraction(_SolverProps, GesturePoseOperatorMixin,
             raise InputError(f"'{sketch.name}' is part of the abstraction: draw the new pose "
                              "in another Grease Pencil object.")
         frame = context.scene.frame_current
-        job = read_rig_job(self, context, arm_obj)
+        job = read_rig_job(self, context, arm_obj, objects)
         depsgraph = context.evaluated_depsgraph_get()
         data = read_abstraction(objects, job.armature, arm_obj, depsgraph,
                                 job.mesh.deformed_vertices, job.mesh.weights)
@@ -262,7 +296,7 @@ class GESTUREPOSE_OT_pose_abstraction(_SolverProps, GesturePoseOperatorMixin,
         options = _options(self, job.limits, self.assignment)
         if self.black_box:
             evaluator = BlenderRigEvaluator(context, arm_obj, job.armature, job.space,
-                                            objects, data.picks, _mesh_objects(arm_obj))
+                                            objects, data.picks, _mesh_objects(arm_obj, job))
             try:
                 problem = build_blackbox_problem(
                     job.armature.names, job.start, job.space, camera, strokes, evaluator,
@@ -330,7 +364,7 @@ class GESTUREPOSE_OT_drawover(_SolverProps, GesturePoseOperatorMixin, bpy.types.
         path = "LBS"
         if self.black_box:
             evaluator = BlenderRigEvaluator(context, arm_obj, job.armature, job.space, [],
-                                            (), _mesh_objects(arm_obj))
+                                            (), _mesh_objects(arm_obj, job))
 
             def raw(pose: RigPose):
                 verts = evaluator(pose)[1]
