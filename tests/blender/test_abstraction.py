@@ -288,3 +288,18 @@ def test_drawover_black_box_path(humanoid) -> None:
                   representatives=60, max_iterations=15)
     assert result == {"FINISHED"}
     assert _image_angle(_bone_dirs(arm)["forearm.L"], want) < 5.0
+
+
+def test_lbs_path_warns_about_a_rig_that_is_not_lbs(humanoid, capfd) -> None:
+    arm, _, stick, _ = humanoid
+    con = arm.pose.bones["forearm.L"].constraints.new("COPY_ROTATION")
+    con.target, con.subtarget = arm, "upper_arm.L"
+    con.mix_mode, con.owner_space, con.target_space = "ADD", "LOCAL", "LOCAL"
+    builders.apply_rotations(arm, {"upper_arm.L": ((0.0, 1.0, 0.0), -30.0)})
+    bpy.context.view_layer.update()
+    strokes = ab.evaluated_polylines(stick)
+    builders.add_grease_pencil("Sketch", strokes)
+    capfd.readouterr()
+    _run(bpy.ops.gesture_pose.pose_abstraction, arm, sketch="Sketch",
+         abstraction="Stick Figure", insert_keys=False)
+    assert "Black-Box Rig" in capfd.readouterr().out
