@@ -19,6 +19,7 @@ MODULES: tuple[str, ...] = (
     "operators.pose_drawing",
     "operators.pose_stroke",
     "operators.abstraction",
+    "operators.fit_drawing",
 )
 
 
