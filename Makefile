@@ -23,7 +23,7 @@ venv: $(STAMP)
 test: $(STAMP)
 	$(VENV_PY) -m pytest -q tests
 
-SCENES := sample_scenes/humanoid.blend sample_scenes/tentacle.blend sample_scenes/quadruped.blend
+SCENES := $(addprefix sample_scenes/,humanoid.blend tentacle.blend quadruped.blend abstraction.blend)
 
 # Rebuild the sample scenes on request; `make demo` only builds those that are missing.
 sample-scenes: $(STAMP)

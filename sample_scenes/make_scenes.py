@@ -1,4 +1,4 @@
-"""Save the sample scenes: humanoid.blend, tentacle.blend and quadruped.blend.
+"""Save the sample scenes: humanoid, tentacle, quadruped, and one scene per posing mode.
 
 Run headless with the project's venv::
 
@@ -106,13 +106,23 @@ def main(argv: list[str]) -> int:
     """
     outdir = Path(argv[0]) if argv else Path(__file__).resolve().parent
     start = time.perf_counter()
-    for recipe in RECIPES:
+    savers = [lambda out, r=recipe: save_scene(r, out) for recipe in RECIPES]
+    savers += [lambda out, name=name, save=save: save(out / f"{name}.blend")
+               for name, save in mode_scenes()]
+    for saver in savers:
         t0 = time.perf_counter()
-        path = save_scene(recipe, outdir)
+        path = saver(outdir)
         size_kb = path.stat().st_size / 1024.0
         print(f"{path}: {size_kb:.0f} KiB in {time.perf_counter() - t0:.2f} s")
     print(f"total {time.perf_counter() - start:.2f} s")
     return 0
+
+
+def mode_scenes() -> list[tuple[str, Callable[[Path], Path]]]:
+    """Scenes that belong to one posing mode: ``(file stem, saver(path) -> path)``."""
+    from sample_scenes import abstraction_builders
+
+    return [("abstraction", abstraction_builders.save_abstraction_scene)]
 
 
 if __name__ == "__main__":
