@@ -41,6 +41,7 @@ class GestureParams:
         pool_candidates: Contour candidates per joint kept after consolidation.
         coarse_candidates: Contour candidates per joint in the coarse pass.
         coarse_cell: Consolidation cell of the coarse pass, epsilons.
+        coarse_stations: Outline samples per bone in the coarse pass's conformity term.
         coarse_grid: Grid points of the coarse occlusion grid.
         fine_reach: Radius around the coarse answer searched by the fine pass, epsilons.
         fine_grid_reach: Half-width of the fine grid around the coarse answer, epsilons.
@@ -60,6 +61,7 @@ class GestureParams:
     pool_candidates: int = 400
     coarse_candidates: int = 120
     coarse_cell: float = 1.5
+    coarse_stations: int = 4
     coarse_grid: int = 40
     fine_reach: float = 3.0
     fine_grid_reach: float = 2.0
@@ -100,8 +102,8 @@ def _near(cands: JointCandidates, centre: np.ndarray, reach: float, count: int
 
 
 def _two_pass(problem, contour: list[JointCandidates], mid_r: np.ndarray, params,
-              zones: dict[int, list[np.ndarray]]) -> tuple[list[JointCandidates], np.ndarray,
-                                                           float]:
+              zones: dict[int, list[np.ndarray]], cache: dict | None = None
+              ) -> tuple[list[JointCandidates], np.ndarray, float]:
     """Coarse DP (many candidates, pairwise factors) then fine DP with triplets.
 
     Returns:
@@ -125,7 +127,8 @@ def _two_pass(problem, contour: list[JointCandidates], mid_r: np.ndarray, params
                     sigma_length=float(np.hypot(problem.params.sigma_length, 2 * slack)),
                     rigid_sigma=float(np.hypot(problem.params.rigid_sigma, 2 * slack)))
     labels, _ = solve_tree(build_energy(replace(problem, params=loose), coarse,
-                                        triplets=False))
+                                        triplets=False, stations=params.coarse_stations,
+                                        cache=cache))
     first = configuration(coarse, labels)
     reach = params.fine_grid_reach * eps
     fine = []
@@ -135,7 +138,7 @@ def _two_pass(problem, contour: list[JointCandidates], mid_r: np.ndarray, params
         fine.append(_penalized(JointCandidates.concat([near, grid]), zones.get(j, []),
                                2 * eps, pen))
     fine = _with_rigid(problem, fine, zones, pen)
-    labels, energy = solve_tree(build_energy(problem, fine))
+    labels, energy = solve_tree(build_energy(problem, fine, cache=cache))
     return fine, labels, energy
 
 
@@ -220,7 +223,8 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
 
     t0 = time.perf_counter()
     zones: dict[int, list[np.ndarray]] = {}
-    cands, labels, energy = _two_pass(problem, contour, mid_r, params, zones)
+    cache: dict = {}
+    cands, labels, energy = _two_pass(problem, contour, mid_r, params, zones, cache)
     timings["mrf"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -241,7 +245,7 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
             break
         blocked |= block_overlaps(base, assign)
         problem = replace(base, blocked=blocked.copy())
-        cands, labels, energy = _two_pass(problem, contour, mid_r, params, {})
+        cands, labels, energy = _two_pass(problem, contour, mid_r, params, {}, cache)
         conf = configuration(cands, labels)
     (n_bad, _, _), conf, problem = best_sol
     if n_bad:

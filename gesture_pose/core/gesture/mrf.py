@@ -207,15 +207,16 @@ def make_problem(drawing: Drawing, solving: SolvingSkeleton, pixels_per_unit: fl
 
 
 def link_table(problem: MatchProblem, j: int, a: JointCandidates,
-               b: JointCandidates) -> np.ndarray:
+               b: JointCandidates, stations: int = 8) -> np.ndarray:
     """Pairwise table between parent candidates ``a`` and joint ``j``'s candidates ``b``."""
     if problem.solving.joint_link_bone[j] < 0:
         return rigid_cost(problem.drawing, a.positions, b.positions, problem.link_offset[j],
                           problem.params)
     prior = direction_cost(a.positions, b.positions, problem.link_offset[j], problem.params)
-    return prior + pair_cost(problem.drawing, a.positions, a.radii, a.group, a.side, b.positions,
-                     b.radii, b.group, b.side, problem.link_length[j], problem.params,
-                     blocked=problem.bone_blocked(j))
+    return prior + pair_cost(problem.drawing, a.positions, a.radii, a.group, a.side,
+                             b.positions, b.radii, b.group, b.side, problem.link_length[j],
+                             problem.params, stations=stations,
+                             blocked=problem.bone_blocked(j))
 
 
 def triplet_table(problem: MatchProblem, j: int, g: JointCandidates, p: JointCandidates,
@@ -228,13 +229,17 @@ def triplet_table(problem: MatchProblem, j: int, g: JointCandidates, p: JointCan
 
 
 def build_energy(problem: MatchProblem, cands: list[JointCandidates],
-                 triplets: bool = True) -> TreeEnergy:
+                 triplets: bool = True, stations: int = 8,
+                 cache: dict | None = None) -> TreeEnergy:
     """Factor tables of ``E_match`` over the candidate sets (Eq. 4).
 
     Args:
         problem: The matching problem.
         cands: Candidates of every joint.
         triplets: Include the naturalness triplets (the coarse pass leaves them out).
+        stations: Outline samples per bone in the conformity term.
+        cache: Pairwise tables of earlier calls, keyed by their inputs (the consistency
+            step re-solves with a few bones changed).
     """
     par = problem.solving.joint_parent
     unary = tuple(c.unary if problem.bone_blocked(j) is None else
@@ -244,7 +249,18 @@ def build_energy(problem: MatchProblem, cands: list[JointCandidates],
     pair, trip = [], []
     for j in range(problem.solving.n_joints):
         p = par[j]
-        pair.append(None if p < 0 else link_table(problem, j, cands[p], cands[j]))
+        if p < 0:
+            pair.append(None)
+        else:
+            blk = problem.bone_blocked(j)
+            key = (j, stations, cands[p].positions.tobytes(), cands[j].positions.tobytes(),
+                   None if blk is None else np.packbits(blk).tobytes(), problem.params)
+            table = None if cache is None else cache.get(key)
+            if table is None:
+                table = link_table(problem, j, cands[p], cands[j], stations)
+                if cache is not None:
+                    cache[key] = table
+            pair.append(table)
         trip.append(triplet_table(problem, j, cands[par[p]], cands[p], cands[j])
                     if triplets and p >= 0 and problem.has_triplet(j) else None)
     return TreeEnergy(par, unary, tuple(pair), tuple(trip))
