@@ -120,7 +120,7 @@ def test_drawover_moves_the_forearm(humanoid) -> None:
     builders.pose_humanoid(arm, "rest")
     rest = _bone_dirs(arm)
     sketch = builders.add_grease_pencil("Sketch", [source, target])
-    result = _run(bpy.ops.gesture_pose.drawover, arm, sketch="Sketch")
+    result = _run(bpy.ops.gesture_pose.drawover, arm, sketch="Sketch", keep_source=True)
     assert result == {"FINISHED"}
     got = _bone_dirs(arm)
     assert _image_angle(got["forearm.L"], want) < 5.0
@@ -283,11 +283,15 @@ def test_drawover_black_box_path(humanoid) -> None:
     want = _bone_dirs(arm)["forearm.L"]
     target = source @ motion[:3, :3].T + motion[:3, 3]
     builders.pose_humanoid(arm, "rest")
-    builders.add_grease_pencil("Sketch", [source, target])
+    sketch = builders.add_grease_pencil("Sketch", [source, target])
     result = _run(bpy.ops.gesture_pose.drawover, arm, sketch="Sketch", black_box=True,
                   representatives=60, max_iterations=15)
     assert result == {"FINISHED"}
     assert _image_angle(_bone_dirs(arm)["forearm.L"], want) < 5.0
+    # By default the user's strokes are left as drawn.
+    drawn = builders.read_strokes(sketch)
+    assert len(drawn) == 2
+    np.testing.assert_allclose(drawn[0], source, atol=1e-5)
 
 
 def test_lbs_path_warns_about_a_rig_that_is_not_lbs(humanoid, capfd) -> None:

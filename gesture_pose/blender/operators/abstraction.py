@@ -333,9 +333,9 @@ class GESTUREPOSE_OT_drawover(_SolverProps, GesturePoseOperatorMixin, bpy.types.
                       "temporary abstraction; the newest stroke is where it should go")
     bl_options = {"REGISTER", "UNDO"}
 
-    keep_source: bpy.props.BoolProperty(name="Keep Source", default=True, description=(
+    keep_source: bpy.props.BoolProperty(name="Keep Source", default=False, description=(
         "Replace the two strokes by the source carried to the new pose, ready to be "
-        "redrawn again"))
+        "redrawn again (off: your strokes are left as drawn)"))
 
     def run(self, context: bpy.types.Context) -> set[str]:
         """Read, solve, write (see the module docstring)."""
