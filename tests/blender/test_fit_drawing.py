@@ -1,0 +1,129 @@
+"""Headless tests of Fit Drawing and Trace Contours on the sample humanoid.
+
+Drawings are the traced visible contours of known poses (how Gesture3D validated itself);
+the fitted joints are compared with the true joints projected in the same view, in percent
+of the figure's projected height.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gesture_pose.blender.operators import fit_drawing as op
+from gesture_pose.blender.read_armature import read_armature
+from gesture_pose.blender.read_view import camera_from_object
+from gesture_pose.core.gesture.embedding import posed_joints
+
+bpy = pytest.importorskip("bpy")
+builders = pytest.importorskip("sample_scenes.builders")
+
+
+def _humanoid():
+    arm, _mesh = builders.build_humanoid()
+    cam = builders.add_camera(arm, resolution=(800, 800))
+    return arm, cam
+
+
+def _errors(arm, emb, camera) -> np.ndarray:
+    """Joint errors in % of the projected height of the posed figure, ``(J,)``."""
+    data = read_armature(arm)
+    truth = camera.project(posed_joints(emb.solving, data.skeleton, data.pose))
+    height = np.ptp(truth[:, 1])
+    return np.linalg.norm(emb.joints2d - truth, axis=1) / height * 100.0
+
+
+def _trace(arm, target="Traced Contours", **kwargs):
+    with bpy.context.temp_override(active_object=arm, object=arm, selected_objects=[arm]):
+        assert bpy.ops.gesture_pose.trace_contours(armature=arm.name, target=target,
+                                                   **kwargs) == {"FINISHED"}
+    return bpy.data.objects[target]
+
+
+# Measured on these clean traced drawings: median joint error 2-4% of the figure's
+# height; the limits leave room for platform noise, not for regressions.
+@pytest.mark.parametrize("pose_name,median_limit,mean_limit", [
+    ("step", 5.0, 9.0),
+    ("reach", 5.0, 9.0),
+])
+def test_fit_finds_the_joints_of_traced_poses(registered, pose_name, median_limit,
+                                              mean_limit):
+    arm, cam = _humanoid()
+    builders.pose_humanoid(arm, pose_name)
+    bpy.context.view_layer.update()
+    sketch = _trace(arm)
+    camera = camera_from_object(cam, bpy.context.scene)
+    emb, n_strokes = op.fit_scene_drawing(arm, sketch, camera)
+    err = _errors(arm, emb, camera)
+    assert n_strokes > 10
+    names = emb.solving.joint_bones
+    assert np.median(err) < median_limit, dict(zip(names, err.round(1), strict=True))
+    assert err.mean() < mean_limit
+    assert 0.5 < emb.coverage <= 1.0
+    assert emb.timings["total"] < 20.0
+
+
+def test_fit_operator_writes_only_its_overlay_layer(registered):
+    arm, _cam = _humanoid()
+    builders.pose_humanoid(arm, "step")
+    bpy.context.view_layer.update()
+    sketch = _trace(arm)
+    user = sketch.data.layers["Lines"].current_frame().drawing
+    before = np.array([p.position[:] for s in user.strokes for p in s.points])
+    for _ in range(2):  # fitting again replaces the overlay, it does not add to it
+        with bpy.context.temp_override(active_object=arm, object=arm):
+            assert bpy.ops.gesture_pose.fit_drawing(armature=arm.name,
+                                                    sketch=sketch.name) == {"FINISHED"}
+        fit = sketch.data.layers[op.FIT_LAYER].current_frame().drawing
+        n_fit = len(fit.strokes)
+        emb, _ = op.fit_scene_drawing(arm, sketch, camera_from_object(_cam, bpy.context.scene))
+        expected = sum(len(v) for v in op.fit_overlay(emb).values())
+        assert n_fit == expected
+    user = sketch.data.layers["Lines"].current_frame().drawing
+    after = np.array([p.position[:] for s in user.strokes for p in s.points])
+    np.testing.assert_array_equal(before, after)
+    assert [layer.name for layer in sketch.data.layers] == ["Lines", op.FIT_LAYER]
+
+
+def test_curve_sketch_from_svg_is_accepted(registered):
+    """Vector drawings arrive as curve objects (Blender's SVG importer makes curves)."""
+    arm, cam = _humanoid()
+    builders.pose_humanoid(arm, "reach")
+    bpy.context.view_layer.update()
+    camera = camera_from_object(cam, bpy.context.scene)
+    traced = op.trace_character(arm, camera)
+    curve = bpy.data.curves.new("Svg", "CURVE")
+    curve.dimensions = "3D"
+    for pts in traced.world(camera):
+        spline = curve.splines.new("POLY")
+        spline.points.add(len(pts) - 1)
+        spline.points.foreach_set("co", np.c_[pts, np.ones(len(pts))].ravel())
+    obj = bpy.data.objects.new("Svg", curve)
+    bpy.context.scene.collection.objects.link(obj)
+    bpy.context.view_layer.update()
+    emb, n = op.fit_scene_drawing(arm, obj, camera)
+    assert n == len(traced.pixels)
+    assert np.median(_errors(arm, emb, camera)) < 5.0
+
+
+def test_bad_input_is_reported(registered):
+    arm, cam = _humanoid()
+    camera = camera_from_object(cam, bpy.context.scene)
+    empty = builders.add_grease_pencil("Empty", [])
+    with pytest.raises(op.InputError, match="no strokes"):
+        op.fit_scene_drawing(arm, empty, camera)
+    # A scribble far smaller than the character in the view.
+    centre = np.array(builders.joint_positions(arm)["chest"][0])
+    tiny = [centre + np.array([[0, -0.2, 0], [0.01, -0.2, 0.01], [0.02, -0.2, 0]])]
+    small = builders.add_grease_pencil("Small", tiny)
+    with pytest.raises(op.InputError, match="far smaller"):
+        op.fit_scene_drawing(arm, small, camera)
+    with bpy.context.temp_override(active_object=arm, object=arm), \
+            pytest.raises(RuntimeError, match="far smaller"):
+        bpy.ops.gesture_pose.fit_drawing(armature=arm.name, sketch=small.name)
+    # An armature without a mesh cannot measure the joint radii.
+    bpy.data.objects.remove(bpy.data.objects[arm.name + "_Mesh"])
+    sketch = builders.add_grease_pencil("Sketch", [centre + np.array([[-0.5, -0.2, -0.8],
+                                                                       [0.5, -0.2, 0.8]])])
+    with pytest.raises(op.InputError, match="mesh"):
+        op.fit_scene_drawing(arm, sketch, camera)
