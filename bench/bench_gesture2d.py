@@ -1,0 +1,160 @@
+"""Gesture3D part 1: accuracy and speed of the 2D skeletal embedding.
+
+Drawings are the traced visible contours of posed characters (how Gesture3D validated
+itself), clean and perturbed like a hand drawing (smooth noise, overshoot, gaps, a 4%
+scale error). Each drawing is fitted from the character's bind pose; the fitted joints are
+compared with the true joints projected in the same view:
+
+- mean and 90th-percentile joint error in % of the figure's projected height;
+- left/right swaps: symmetric joint pairs fitted the wrong way round;
+- coverage of the drawn contours, and seconds per drawing.
+
+Characters: the sample humanoid (named poses, front and three-quarter views) and
+quadruped; with ``../shared/eval-assets`` present, CMU poses on the Quaternius Adventurer.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+ASSETS = Path(__file__).resolve().parents[2] / "shared" / "eval-assets"
+ADVENTURER = ASSETS / "humanoid_quaternius_adventurer" / "Adventurer_cmu40poses.glb"
+HEADERS = ["character", "pose", "view", "drawing", "joints", "mean err %", "p90 err %",
+           "L/R swaps", "coverage %", "s"]
+
+
+def swaps(solving, fitted: np.ndarray, truth: np.ndarray) -> int:
+    """Symmetric joint pairs whose fitted positions match the truth better swapped."""
+    from gesture_pose.core.gesture.solving import symmetric_joint_pairs
+
+    pairs = symmetric_joint_pairs(solving)
+    if len(pairs) == 0:
+        return 0
+    a, b = pairs[:, 0], pairs[:, 1]
+    straight = (np.linalg.norm(fitted[a] - truth[a], axis=1)
+                + np.linalg.norm(fitted[b] - truth[b], axis=1))
+    crossed = (np.linalg.norm(fitted[a] - truth[b], axis=1)
+               + np.linalg.norm(fitted[b] - truth[a], axis=1))
+    return int(np.sum(crossed < 0.5 * straight))
+
+
+def measure(arm, camera, traced, label: list) -> list:
+    """Fit one traced drawing and return a table row."""
+    from gesture_pose.blender.operators.fit_drawing import bind_pose
+    from gesture_pose.blender.read_armature import read_armature
+    from gesture_pose.blender.read_mesh import read_skinned_meshes
+    from gesture_pose.core.gesture.embedding import fit_drawing, posed_joints
+    from gesture_pose.core.stroke import Stroke
+
+    data = read_armature(arm)
+    bind = bind_pose(data)
+    meshes = read_skinned_meshes(arm, data.skeleton, state=data.skeleton.forward(bind))
+    strokes = [Stroke(p) for p in traced.pixels]
+    t0 = time.perf_counter()
+    emb = fit_drawing(strokes, data.skeleton, bind, meshes.rest_vertices, camera,
+                      meshes.weights, override=data.gesture_override)
+    seconds = time.perf_counter() - t0
+    truth = camera.project(posed_joints(emb.solving, data.skeleton, data.pose))
+    err = np.linalg.norm(emb.joints2d - truth, axis=1) / np.ptp(truth[:, 1]) * 100.0
+    return [*label, emb.solving.n_joints, float(err.mean()), float(np.percentile(err, 90)),
+            swaps(emb.solving, emb.joints2d, truth), 100.0 * emb.coverage, seconds]
+
+
+def _drawings(arm, camera):
+    """Clean and perturbed traced drawings of the character as posed now."""
+    from gesture_pose.blender.operators.fit_drawing import trace_character
+    from gesture_pose.core.gesture.trace import Perturbation, perturb
+
+    clean = trace_character(arm, camera)
+    return [("clean", clean), ("perturbed", perturb(clean, Perturbation(seed=1)))]
+
+
+def sample_rows(quick: bool) -> list[list]:
+    """Rows for the sample humanoid and quadruped."""
+    import bpy
+
+    from gesture_pose.blender.read_view import camera_from_object
+    from sample_scenes import builders
+
+    cases = [("humanoid", p, v) for p in ("rest", "wave", "step", "reach", "crouch",
+                                          "raise_left_arm", "kick_right_leg")
+             for v in ("front", "3/4")]
+    cases += [("quadruped", p, "side") for p in ("rest", "tail_up", "paw_forward")]
+    if quick:
+        cases = [("humanoid", "step", "front")]
+    views = {"front": (0.0, -1.0, 0.0), "3/4": (0.6, -1.0, 0.15), "side": (1.0, -0.25, 0.1)}
+    rows = []
+    for kind, pose, view in cases:
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        if kind == "humanoid":
+            arm, _ = builders.build_humanoid()
+            builders.pose_humanoid(arm, pose)
+        else:
+            arm, _ = builders.build_quadruped()
+            if pose != "rest":
+                builders.apply_rotations(arm, builders.QUADRUPED_POSES[pose])
+        cam = builders.add_camera(arm, direction=views[view], resolution=(800, 800))
+        bpy.context.view_layer.update()
+        camera = camera_from_object(cam, bpy.context.scene)
+        for drawing, traced in _drawings(arm, camera):
+            rows.append(measure(arm, camera, traced, [kind, pose, view, drawing]))
+    return rows
+
+
+def adventurer_rows(quick: bool) -> list[list]:
+    """Rows for CMU poses on the Quaternius Adventurer (skipped when assets are absent)."""
+    if not ADVENTURER.exists():
+        return []
+    import bpy
+
+    from gesture_pose.blender.read_view import camera_from_object
+    from sample_scenes import builders
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.import_scene.gltf(filepath=str(ADVENTURER))
+    scene = bpy.context.scene
+    arm = next(o for o in scene.objects if o.type == "ARMATURE")
+    meshes = [o for o in scene.objects if o.type == "MESH" and o.find_armature() == arm]
+    cam = builders.add_camera(meshes[0] if meshes else arm, resolution=(800, 800))
+    camera = camera_from_object(cam, scene)
+    rows = []
+    for k in ((1,) if quick else range(1, 41, 4)):
+        scene.frame_set(k)
+        bpy.context.view_layer.update()
+        for drawing, traced in _drawings(arm, camera):
+            try:
+                rows.append(measure(arm, camera, traced, ["adventurer", f"cmu {k}", "front",
+                                                          drawing]))
+            except Exception as err:  # noqa: BLE001 - a benchmark row, not a crash
+                rows.append(["adventurer", f"cmu {k}", "front", drawing, "-",
+                             f"failed: {err}"[:60], "", "", "", ""])
+    return rows
+
+
+def _summary(rows: list[list]) -> list[list]:
+    """Mean over rows per character and drawing kind."""
+    out = []
+    keys = sorted({(r[0], r[3]) for r in rows if isinstance(r[5], float)})
+    for kind, drawing in keys:
+        sel = [r for r in rows if r[0] == kind and r[3] == drawing and isinstance(r[5], float)]
+        out.append([kind, "all", "", drawing, sel[0][4],
+                    *[float(np.mean([r[c] for r in sel])) for c in (5, 6)],
+                    int(sum(r[7] for r in sel)), float(np.mean([r[8] for r in sel])),
+                    float(np.mean([r[9] for r in sel]))])
+    return out
+
+
+def run(quick: bool) -> list[tuple[str, list[str], list[list]]]:
+    """The per-drawing table and its summary (empty without bpy)."""
+    try:
+        import bpy  # noqa: F401
+    except ImportError:
+        return []
+    rows = sample_rows(quick) + adventurer_rows(quick)
+    return [("Gesture3D 2D embedding of traced drawings (joint error in % of the projected "
+             "height)", HEADERS, rows),
+            ("Gesture3D 2D embedding: means per character and drawing", HEADERS,
+             _summary(rows))]
