@@ -20,6 +20,7 @@ MODULES: tuple[str, ...] = (
     "operators.pose_stroke",
     "operators.abstraction",
     "operators.fit_drawing",
+    "operators.stick",
 )
 
 

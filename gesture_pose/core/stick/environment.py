@@ -185,7 +185,7 @@ def surface_samples(env: Environment, spacing: float, lo: np.ndarray,
 
 
 def distance_grid(env: Environment, center: np.ndarray, half_size: float,
-                  spacing: float = 0.015, max_distance: float = 0.3) -> DistanceGrid:
+                  spacing: float = 0.02, max_distance: float = 0.2) -> DistanceGrid:
     """Distance to the environment's surfaces inside a cube around ``center``.
 
     Args:
@@ -200,7 +200,11 @@ def distance_grid(env: Environment, center: np.ndarray, half_size: float,
     """
     lo = np.asarray(center, float) - half_size
     hi = np.asarray(center, float) + half_size
-    return DistanceGrid(surface_samples(env, spacing, lo, hi), spacing, max_distance)
+    samples = surface_samples(env, spacing, lo, hi)
+    samples = samples[np.all((samples >= lo) & (samples <= hi), 1)]
+    _, first = np.unique(np.floor(samples / (0.5 * spacing)).astype(np.int64), axis=0,
+                         return_index=True)
+    return DistanceGrid(samples[np.sort(first)], spacing, max_distance)
 
 
 def _region(env: Environment, tri: int, height_tol: float = 0.03,

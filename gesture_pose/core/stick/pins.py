@@ -106,8 +106,14 @@ def pin_offsets(figure: CharacterFigure, skeleton: Skeleton, caps: Capsules,
 
 def resolve_pins(figure: CharacterFigure, stick: StickFigure,
                  env_specs: tuple[EnvPinSpec, ...], limb_specs: tuple[LimbPinSpec, ...],
-                 offsets: np.ndarray) -> tuple[tuple[EnvPin, ...], tuple[LimbPin, ...]]:
+                 offsets: np.ndarray, camera: Camera | None = None
+                 ) -> tuple[tuple[EnvPin, ...], tuple[LimbPin, ...]]:
     """Turn stored pins into objective pins (joint indices, lifted targets).
+
+    The target of a joint pinned to a surface lies on the contact plane lifted by the
+    joint's offset; when the joint is drawn and ``camera`` is given, it is where the eye
+    ray through the drawn joint meets that lifted plane, so that the placed joint still
+    projects onto the drawing.
 
     Raises:
         InputError: A pin names a joint the character does not have.
@@ -123,7 +129,15 @@ def resolve_pins(figure: CharacterFigure, stick: StickFigure,
         j = index(spec.joint)
         n = np.asarray(spec.normal, float)
         n = n / max(np.linalg.norm(n), 1e-12)
-        env.append(EnvPin(j, np.asarray(spec.point, float) + n * offsets[j], n))
+        target = np.asarray(spec.point, float) + n * offsets[j]
+        if camera is not None and stick.present[j]:
+            o, d = camera.rays(stick.points[j][None])
+            rate = float(d[0] @ n)
+            if abs(rate) > 1e-6:
+                t = float((target - o[0]) @ n) / rate
+                if t > 0:
+                    target = o[0] + t * d[0]
+        env.append(EnvPin(j, target, n))
     limbs = tuple(LimbPin(index(s.joint), (index(s.limb[0]), index(s.limb[1])), float(s.s))
                   for s in limb_specs)
     return tuple(env), limbs

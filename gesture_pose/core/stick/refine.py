@@ -53,7 +53,7 @@ def refine(objective: StickObjective, x0: np.ndarray, bounds: np.ndarray,
     t0 = time.perf_counter()
     res = minimize(lambda x: objective.value_and_grad(x, collision), np.clip(x0, *bounds.T),
                    jac=True, method="L-BFGS-B", bounds=bounds,
-                   options={"maxiter": max_iterations, "maxcor": 30, "ftol": 1e-10,
+                   options={"maxiter": max_iterations, "maxcor": 15, "ftol": 1e-10,
                             "gtol": 1e-7})
     return RefineResult(res.x, float(res.fun), int(res.nit), int(res.nfev),
                         time.perf_counter() - t0, str(res.message))

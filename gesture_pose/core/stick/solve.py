@@ -81,7 +81,7 @@ class StickInput:
     use_contact: bool = False
     ga: GAConfig = field(default_factory=GAConfig)
     weights: Weights = field(default_factory=Weights)
-    refine_iterations: int = 250
+    refine_iterations: int = 150
 
 
 @dataclass(frozen=True)
@@ -245,7 +245,8 @@ def solve_stick(inp: StickInput) -> StickResult:
     model = PoseModel(sk, figure, base)
     caps = capsules_from_mesh(sk, inp.mesh_vertices, inp.mesh_weights)
     offsets = pin_offsets(figure, sk, caps, inp.mesh_vertices, inp.mesh_weights)
-    env_pins, limb_pins = resolve_pins(figure, stick, inp.env_pins, inp.limb_pins, offsets)
+    env_pins, limb_pins = resolve_pins(figure, stick, inp.env_pins, inp.limb_pins, offsets,
+                                       cam)
     up = figure.up
     height = float(np.ptp(np.concatenate([sk.rest_heads, sk.rest_tails]) @ up))
     lengths = _edge_lengths(figure, sk)
@@ -275,7 +276,7 @@ def solve_stick(inp: StickInput) -> StickResult:
         o, d = cam.rays(seat_pixel[None])
         probe = cam.unproject_at_depth(stick.points[pelvis_j][None], depth_guess)[0]
         dist = float(np.linalg.norm(probe - o[0]))
-        grid = distance_grid(env, probe, 1.0 * height)
+        grid = distance_grid(env, probe, 0.75 * height)
         seat = find_seat(env, o[0], d[0], knee_h, hip_r, grid, near=0.5 * dist,
                          far=1.6 * dist)
     if seat is not None:
@@ -287,7 +288,7 @@ def solve_stick(inp: StickInput) -> StickResult:
             depth = float(np.mean(cam.depth(np.array([p.target for p in env_pins]))))
         root = cam.unproject_at_depth(stick.points[pelvis_j][None], depth)[0]
         if env is not None and len(env.triangles) and np.linalg.norm(root - probe) > 0.3:
-            grid = distance_grid(env, root, 1.0 * height)
+            grid = distance_grid(env, root, 0.75 * height)
     ppu_root = cam.pixels_per_unit(float(cam.depth(root[None])[0]))
     stick, factor = normalize_figure(stick, lengths, ppu_root, pelvis_j)
     if factor < 1.0:
@@ -322,9 +323,9 @@ def solve_stick(inp: StickInput) -> StickResult:
     t0 = time.perf_counter()
     heads, tails, _ = model.forward(ga.population[:256])
     joints = figure.joint_positions(heads, tails)
-    picks = _distinct(joints, np.arange(len(joints)), inp.n_suggestions + 2, 0.04 * height)
+    picks = _distinct(joints, np.arange(len(joints)), inp.n_suggestions + 1, 0.04 * height)
     # Short refinement of every distinct candidate, then a long one of the best few.
-    first = [refine(objective, ga.population[i], bounds, max_iterations=40) for i in picks]
+    first = [refine(objective, ga.population[i], bounds, max_iterations=30) for i in picks]
     order = np.argsort([r.energy for r in first])
     heads, tails, _ = model.forward(np.array([first[i].x for i in order]))
     joints = figure.joint_positions(heads, tails)

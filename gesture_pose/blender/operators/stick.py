@@ -1,0 +1,461 @@
+"""Stick-figure posing in an environment (Lin et al. 2012) in the Gesture Pose sidebar.
+
+Operators: Pose Stick Figure (solve and key), Pin Joint (to a surface under the drawn
+joint or to a limb; stored on the scene), Swap Sides (flip a left/right guess and solve
+again), Next Suggestion (step through the distinct solutions of the last solve) and the
+modal Edit Stick Figure (drag drawn joints, locally or along their chain).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import bpy
+import numpy as np
+
+from ...core.camera import Camera
+from ...core.exceptions import InputError
+from ...core.skeleton import Pose
+from ...core.stick.edit import GLOBAL_RADIUS, drag_node
+from ...core.stick.figure import HUMANOID_JOINTS, CharacterFigure, humanoid_figure
+from ...core.stick.graph import SNAP_RADIUS, StickFigure, stick_figure_from_strokes
+from ...core.stick.pins import EnvPinSpec, LimbPinSpec, limb_parameter, pin_candidates
+from ...core.stick.solve import StickInput, StickResult, solve_stick
+from ..operator_utils import (
+    GesturePoseOperatorMixin,
+    nothing_to_do,
+    report_result,
+    resolve_armature,
+    resolve_sketch,
+)
+from ..read_armature import ArmatureData, read_armature
+from ..read_mesh import read_skinned_meshes
+from ..read_strokes import read_sketch, write_strokes
+from ..read_view import camera_from_context
+from ..stick_io import (
+    environment_objects,
+    read_environment,
+    read_pins,
+    read_suggestions,
+    read_swaps,
+    remove_pin,
+    set_current_suggestion,
+    store_suggestions,
+    toggle_swap,
+    write_pins,
+)
+from ..write_pose import apply_pose
+
+JOINT_ITEMS = [(n, n, f"Stick joint {n}") for n, _, _ in HUMANOID_JOINTS]
+LIMB_ITEMS = [(f"{p},{n}", f"{p} - {n}", f"Stick edge from {p} to {n}")
+              for n, p, _ in HUMANOID_JOINTS if p]
+FACING_ITEMS = [("front", "Front", "The drawn character faces the viewer"),
+                ("back", "Back", "The drawn character turns its back to the viewer")]
+
+
+@dataclass(frozen=True)
+class StickScene:
+    """What the stick operators read from Blender, once.
+
+    Attributes:
+        armature: The armature's data.
+        camera: The view the figure was drawn in.
+        figure: The character's stick model.
+        stick: The matched drawing, user swaps applied.
+        sketch_depth: Mean view depth of the drawn strokes (to write edits back).
+    """
+
+    armature: ArmatureData
+    camera: Camera
+    figure: CharacterFigure
+    stick: StickFigure
+    sketch_depth: float
+
+
+def read_stick_scene(context, arm_obj, sketch_obj, snap_radius: float = SNAP_RADIUS,
+                     facing: str = "front") -> StickScene:
+    """Read the armature, view and drawing, and match the drawing to the character."""
+    data = read_armature(arm_obj)
+    camera = camera_from_context(context)
+    strokes = read_sketch(sketch_obj, context.scene.frame_current)
+    if not strokes:
+        raise InputError(f"'{sketch_obj.name}' has no strokes at this frame: draw a stick "
+                         "figure (spine, head, arms, legs) over the scene.")
+    pts = [camera.project(s.points_world) for s in strokes]
+    if not all(np.all(np.isfinite(p)) for p in pts):
+        raise InputError("Part of the drawing is behind the view: draw in front of the "
+                         "camera.")
+    figure = humanoid_figure(data.skeleton, data.ik_limits)
+    stick = stick_figure_from_strokes(pts, figure, snap_radius, facing)
+    for pair in sorted(read_swaps(context.scene)):
+        stick = stick.swapped(pair)
+    depth = float(np.mean(np.concatenate([camera.depth(s.points_world) for s in strokes])))
+    return StickScene(data, camera, figure, stick, depth)
+
+
+def _base_pose(data: ArmatureData, figure: CharacterFigure) -> tuple[Pose, list[int]]:
+    """Current pose with the solved bones at rest, and the solved bones."""
+    solved = sorted({figure.root_bone} | {int(b) for g in figure.groups for b in g.bones})
+    rot = data.pose.rotations.copy()
+    rot[solved] = np.eye(3)
+    trans = data.pose.translations.copy()
+    trans[figure.root_bone] = 0.0
+    return Pose(rot, trans), solved
+
+
+def solve_scene(context, op, arm_obj, sketch_obj) -> tuple[StickResult, list[str]]:
+    """Solve from the scene with the operator's settings and write the best pose."""
+    scene = context.scene
+    st = read_stick_scene(context, arm_obj, sketch_obj, op.snap_radius, op.facing)
+    data = st.armature
+    depsgraph = context.evaluated_depsgraph_get()
+    try:
+        mesh = read_skinned_meshes(arm_obj, data.skeleton, depsgraph)
+        verts, weights = mesh.rest_vertices, mesh.weights
+    except InputError:
+        verts = weights = None
+    env = read_environment(environment_objects(context, arm_obj, op.environment), depsgraph)
+    env_pins, limb_pins = read_pins(scene)
+    base, solved = _base_pose(data, st.figure)
+    inp = StickInput(
+        skeleton=data.skeleton, camera=st.camera, stick=st.stick, environment=env,
+        mesh_vertices=verts, mesh_weights=weights, ik_limits=data.ik_limits,
+        base_pose=base, env_pins=env_pins, limb_pins=limb_pins, seed=op.seed,
+        n_suggestions=op.suggestions, use_contact=op.use_contact)
+    result = solve_stick(inp)
+    best = result.suggestions[0]
+    written = apply_pose(arm_obj, data, best.pose, bones=solved, insert_keys=op.insert_keys,
+                         frame=scene.frame_current, location_bones=[st.figure.root_bone])
+    store_suggestions(scene, arm_obj.name, data.skeleton.names,
+                      [s.pose for s in result.suggestions],
+                      [s.energy for s in result.suggestions], scene.frame_current)
+    return result, written
+
+
+class _StickSolveProps:
+    """Properties shared by the operators that solve."""
+
+    armature: bpy.props.StringProperty(name="Armature", description="Armature to pose "
+                                       "(empty: the one picked in the panel or selected)")
+    sketch: bpy.props.StringProperty(name="Sketch", description="Grease Pencil object "
+                                     "holding the stick figure (empty: automatic)")
+    environment: bpy.props.StringProperty(name="Environment", description="Collection of "
+                                          "the furniture and floor (empty: visible meshes "
+                                          "that are not the character)")
+    seed: bpy.props.IntProperty(name="Seed", default=0, min=0,
+                                description="Random seed of the genetic search")
+    suggestions: bpy.props.IntProperty(name="Suggestions", default=3, min=1, max=8,
+                                       description="Distinct solutions to keep")
+    snap_radius: bpy.props.FloatProperty(name="Snap Radius", default=SNAP_RADIUS, min=1.0,
+                                         subtype="PIXEL", description="Stroke ends closer "
+                                         "than this join")
+    facing: bpy.props.EnumProperty(name="Facing", items=FACING_ITEMS, default="front")
+    use_contact: bpy.props.BoolProperty(name="Contact Dot", default=False, description=(
+        "Sit where a drawn dot touches the seat instead of under the pelvis"))
+    insert_keys: bpy.props.BoolProperty(name="Insert Keys", default=True)
+
+
+class GESTUREPOSE_OT_pose_stick_figure(_StickSolveProps, GesturePoseOperatorMixin,
+                                       bpy.types.Operator):
+    """Pose the character from a drawn stick figure, sitting or standing in the scene."""
+
+    bl_idname = "gesture_pose.pose_stick_figure"
+    bl_label = "Pose Stick Figure"
+    bl_description = ("Pose the character in 3D so that it matches the drawn stick figure, "
+                      "sits where drawn, keeps balance and avoids the furniture")
+    bl_options = {"REGISTER", "UNDO"}
+
+    def run(self, context: bpy.types.Context) -> set[str]:
+        """Read, solve, write and key the best suggestion."""
+        t0 = time.perf_counter()
+        arm = resolve_armature(context, self.armature)
+        sketch = resolve_sketch(context, self.sketch, arm)
+        result, written = solve_scene(context, self, arm, sketch)
+        for w in result.warnings:
+            self.report({"WARNING"}, w)
+        where = "seated" if result.seat is not None else "not seated"
+        report_result(self, f"Posed {len(written)} bones from the stick figure ({where}) in "
+                            f"{time.perf_counter() - t0:.2f} s; {len(result.suggestions)} "
+                            "suggestion(s), Next Suggestion steps through them")
+        return {"FINISHED"}
+
+
+class GESTUREPOSE_OT_swap_sides(_StickSolveProps, GesturePoseOperatorMixin,
+                                bpy.types.Operator):
+    """Exchange the drawn left and right arms or legs, then pose again."""
+
+    bl_idname = "gesture_pose.swap_sides"
+    bl_label = "Swap Sides"
+    bl_description = "The left/right guess was wrong: exchange a pair of limbs and re-pose"
+    bl_options = {"REGISTER", "UNDO"}
+
+    pair: bpy.props.EnumProperty(name="Limbs", items=[("arms", "Arms", ""),
+                                                      ("legs", "Legs", "")], default="arms")
+
+    def run(self, context: bpy.types.Context) -> set[str]:
+        """Toggle the stored swap and solve again."""
+        arm = resolve_armature(context, self.armature)
+        sketch = resolve_sketch(context, self.sketch, arm)
+        swaps = toggle_swap(context.scene, self.pair)
+        try:
+            result, written = solve_scene(context, self, arm, sketch)
+        except Exception:
+            toggle_swap(context.scene, self.pair)
+            raise
+        report_result(self, f"Swapped the {self.pair} (swapped now: {sorted(swaps) or 'none'}"
+                            f"); posed {len(written)} bones")
+        return {"FINISHED"}
+
+
+class GESTUREPOSE_OT_next_suggestion(GesturePoseOperatorMixin, bpy.types.Operator):
+    """Show the next of the distinct solutions of the last stick-figure solve."""
+
+    bl_idname = "gesture_pose.next_suggestion"
+    bl_label = "Next Suggestion"
+    bl_description = "Step through the distinct poses the last Pose Stick Figure found"
+    bl_options = {"REGISTER", "UNDO"}
+
+    step: bpy.props.IntProperty(name="Step", default=1, description="1 next, -1 previous")
+    insert_keys: bpy.props.BoolProperty(name="Insert Keys", default=True)
+
+    def run(self, context: bpy.types.Context) -> set[str]:
+        """Apply the stored suggestion after the current one."""
+        stored = read_suggestions(context.scene)
+        if not stored or not stored.get("rotations"):
+            return nothing_to_do(self, "no suggestions yet; run Pose Stick Figure first.")
+        arm = bpy.data.objects.get(stored["armature"])
+        if arm is None or arm.type != "ARMATURE":
+            raise InputError(f"The armature '{stored['armature']}' of the last solve is gone: "
+                             "run Pose Stick Figure again.")
+        data = read_armature(arm)
+        if tuple(stored["names"]) != data.skeleton.names:
+            raise InputError("The armature's bones changed since the last solve: run Pose "
+                             "Stick Figure again.")
+        n = len(stored["rotations"])
+        k = (int(stored.get("current", 0)) + self.step) % n
+        pose = Pose(np.array(stored["rotations"][k]), np.array(stored["translations"][k]))
+        figure = humanoid_figure(data.skeleton, data.ik_limits)
+        written = apply_pose(arm, data, pose, insert_keys=self.insert_keys,
+                             frame=context.scene.frame_current,
+                             location_bones=[figure.root_bone])
+        set_current_suggestion(context.scene, k)
+        report_result(self, f"Suggestion {k + 1} of {n} (energy "
+                            f"{stored['energies'][k]:.4f}); {len(written)} bones changed")
+        return {"FINISHED"}
+
+
+class GESTUREPOSE_OT_pin_joint(GesturePoseOperatorMixin, bpy.types.Operator):
+    """Pin a drawn joint to the surface under it or to a limb (stored on the scene)."""
+
+    bl_idname = "gesture_pose.pin_joint"
+    bl_label = "Pin Joint"
+    bl_description = ("Attach a stick joint to the environment (feet on the floor, hand on "
+                      "the table) or to a limb (hand on the knee); Pose Stick Figure keeps it")
+    bl_options = {"REGISTER", "UNDO"}
+
+    armature: bpy.props.StringProperty(name="Armature")
+    sketch: bpy.props.StringProperty(name="Sketch")
+    environment: bpy.props.StringProperty(name="Environment")
+    joint: bpy.props.EnumProperty(name="Joint", items=JOINT_ITEMS, default="ankle.L")
+    target: bpy.props.EnumProperty(name="Pin To", default="ENVIRONMENT", items=[
+        ("ENVIRONMENT", "Environment", "The surface under the drawn joint"),
+        ("LIMB", "Limb", "A point of another stick edge"),
+        ("CLEAR", "Clear", "Remove this joint's pin"),
+        ("CLEAR_ALL", "Clear All", "Remove every pin")])
+    candidate: bpy.props.IntProperty(name="Surface", default=0, min=0, description=(
+        "Which surface under the joint, nearest first (e.g. 0 the table, 1 the floor)"))
+    limb: bpy.props.EnumProperty(name="Limb", items=LIMB_ITEMS, default=LIMB_ITEMS[-2][0])
+    snap_radius: bpy.props.FloatProperty(name="Snap Radius", default=SNAP_RADIUS, min=1.0)
+    facing: bpy.props.EnumProperty(name="Facing", items=FACING_ITEMS, default="front")
+
+    def run(self, context: bpy.types.Context) -> set[str]:
+        """Store, replace or clear a pin."""
+        scene = context.scene
+        if self.target == "CLEAR_ALL":
+            report_result(self, f"Removed {remove_pin(scene)} pin(s)")
+            return {"FINISHED"}
+        if self.target == "CLEAR":
+            report_result(self, f"Removed {remove_pin(scene, self.joint)} pin(s) of "
+                                f"{self.joint}")
+            return {"FINISHED"}
+        arm = resolve_armature(context, self.armature)
+        sketch = resolve_sketch(context, self.sketch, arm)
+        st = read_stick_scene(context, arm, sketch, self.snap_radius, self.facing)
+        j = st.stick.joint_names.index(self.joint)
+        if not st.stick.present[j]:
+            raise InputError(f"'{self.joint}' is not in the drawing: draw it first.")
+        env_pins, limb_pins = read_pins(scene)
+        if self.target == "LIMB":
+            a, b = self.limb.split(",")
+            if self.joint in (a, b):
+                raise InputError("A joint cannot be pinned to its own limb: pick another.")
+            spec = LimbPinSpec(self.joint, (a, b), limb_parameter(st.stick, self.joint,
+                                                                  (a, b)))
+            write_pins(scene, env_pins, limb_pins + (spec,))
+            report_result(self, f"Pinned {self.joint} to {a}-{b} at {spec.s:.2f}")
+            return {"FINISHED"}
+        env = read_environment(environment_objects(context, arm, self.environment),
+                               context.evaluated_depsgraph_get())
+        if env is None:
+            raise InputError("No environment meshes to pin to: add a floor or furniture.")
+        hits = pin_candidates(env, st.camera, st.stick.points[j])
+        if not hits:
+            raise InputError(f"No surface under '{self.joint}': draw it over the floor or "
+                             "furniture.")
+        names = [f"{i}: {env.object_names[h.object_index]}" for i, h in enumerate(hits)]
+        if self.candidate >= len(hits):
+            raise InputError(f"Surface {self.candidate} does not exist; the surfaces under "
+                             f"'{self.joint}' are {', '.join(names)}.")
+        hit = hits[self.candidate]
+        spec = EnvPinSpec(self.joint, hit.point, hit.normal,
+                          env.object_names[hit.object_index])
+        write_pins(scene, env_pins + (spec,), limb_pins)
+        more = f" (other surfaces: {', '.join(names)})" if len(hits) > 1 else ""
+        report_result(self, f"Pinned {self.joint} to '{spec.object_name}'{more}")
+        return {"FINISHED"}
+
+
+def write_stick(sketch_obj, stick: StickFigure, camera: Camera, depth: float, frame: int
+                ) -> None:
+    """Replace the active layer's strokes by one straight stroke per drawn stick edge."""
+    edges = stick.drawn_edges()
+    lines = [camera.unproject_at_depth(np.linspace(stick.points[a], stick.points[b], 8),
+                                       depth) for a, b in edges]
+    layer = sketch_obj.data.layers.active or sketch_obj.data.layers[0]
+    write_strokes(sketch_obj, layer.name, lines, frame=frame, replace=True)
+
+
+class GESTUREPOSE_OT_edit_stick_figure(_StickSolveProps, bpy.types.Operator):
+    """Drag the drawn joints: short drags move one joint, long ones bend its chain."""
+
+    bl_idname = "gesture_pose.edit_stick_figure"
+    bl_label = "Edit Stick Figure"
+    bl_description = ("Drag stick joints in the viewport (left mouse); far drags move the "
+                      "chain from the pelvis; release re-poses; Esc or right mouse ends")
+    bl_options = {"REGISTER", "UNDO"}
+
+    global_radius: bpy.props.FloatProperty(name="Global Drag", default=GLOBAL_RADIUS,
+                                           min=0.0, subtype="PIXEL")
+
+    @classmethod
+    def poll(cls, context) -> bool:
+        """Needs a 3D View."""
+        if context.area is None or context.area.type != "VIEW_3D":
+            cls.poll_message_set("Run from a 3D View")
+            return False
+        return True
+
+    def invoke(self, context, event):
+        """Read the drawing and start dragging."""
+        try:
+            self._arm = resolve_armature(context, self.armature)
+            self._sketch = resolve_sketch(context, self.sketch, self._arm)
+            self._scene = read_stick_scene(context, self._arm, self._sketch,
+                                           self.snap_radius, self.facing)
+        except InputError as err:
+            self.report({"ERROR"}, str(err))
+            return {"CANCELLED"}
+        self._stick = self._scene.stick
+        self._drag = None
+        context.window_manager.modal_handler_add(self)
+        context.workspace.status_text_set("Drag stick joints; Esc/right mouse: done")
+        return {"RUNNING_MODAL"}
+
+    def _pick(self, xy) -> int | None:
+        d = np.linalg.norm(self._stick.points - xy, axis=1)
+        d[~self._stick.present] = np.inf
+        j = int(np.argmin(d))
+        return j if d[j] < 25.0 else None
+
+    def modal(self, context, event):
+        """Pick on press, drag on move, write and re-pose on release."""
+        xy = np.array([event.mouse_region_x, event.mouse_region_y], float)
+        if event.type in {"ESC", "RIGHTMOUSE"}:
+            context.workspace.status_text_set(None)
+            return {"FINISHED"}
+        if event.type == "LEFTMOUSE" and event.value == "PRESS":
+            j = self._pick(xy)
+            self._drag = None if j is None else (j, self._stick)
+            return {"RUNNING_MODAL"}
+        if event.type == "MOUSEMOVE" and self._drag is not None:
+            j, start = self._drag
+            self._stick = drag_node(start, j, xy, self.global_radius)
+            write_stick(self._sketch, self._stick, self._scene.camera,
+                        self._scene.sketch_depth, context.scene.frame_current)
+            return {"RUNNING_MODAL"}
+        if event.type == "LEFTMOUSE" and event.value == "RELEASE" and self._drag is not None:
+            self._drag = None
+            try:
+                solve_scene(context, self, self._arm, self._sketch)
+            except InputError as err:
+                self.report({"ERROR"}, str(err))
+            return {"RUNNING_MODAL"}
+        return {"PASS_THROUGH"}
+
+
+class StickSettings(bpy.types.PropertyGroup):
+    """Scene settings shown in the Stick Figure panel."""
+
+    environment: bpy.props.PointerProperty(name="Environment", type=bpy.types.Collection,
+                                           description="Furniture and floor (empty: every "
+                                           "visible mesh that is not the character)")
+    seed: bpy.props.IntProperty(name="Seed", default=0, min=0)
+    suggestions: bpy.props.IntProperty(name="Suggestions", default=3, min=1, max=8)
+    use_contact: bpy.props.BoolProperty(name="Contact Dot", default=False)
+    pin_joint: bpy.props.EnumProperty(name="Joint", items=JOINT_ITEMS, default="ankle.L")
+    pin_candidate: bpy.props.IntProperty(name="Surface", default=0, min=0)
+
+
+class VIEW3D_PT_gesture_pose_stick(bpy.types.Panel):
+    """Stick figures in an environment."""
+
+    bl_idname = "VIEW3D_PT_gesture_pose_stick"
+    bl_label = "Stick Figure"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Gesture Pose"
+    bl_parent_id = "VIEW3D_PT_gesture_pose"
+
+    def draw(self, context: bpy.types.Context) -> None:
+        """Settings, solve, suggestions, pins and editing."""
+        s = context.scene.gesture_pose_stick
+        col = self.layout.column(align=True)
+        col.prop(s, "environment")
+        row = col.row(align=True)
+        row.prop(s, "seed")
+        row.prop(s, "suggestions")
+        col.prop(s, "use_contact")
+        op = col.operator(GESTUREPOSE_OT_pose_stick_figure.bl_idname, icon="ARMATURE_DATA")
+        op.environment = s.environment.name if s.environment else ""
+        op.seed, op.suggestions, op.use_contact = s.seed, s.suggestions, s.use_contact
+        row = col.row(align=True)
+        row.operator(GESTUREPOSE_OT_next_suggestion.bl_idname, text="Previous").step = -1
+        row.operator(GESTUREPOSE_OT_next_suggestion.bl_idname, text="Next").step = 1
+        row = col.row(align=True)
+        row.operator(GESTUREPOSE_OT_swap_sides.bl_idname, text="Swap Arms").pair = "arms"
+        row.operator(GESTUREPOSE_OT_swap_sides.bl_idname, text="Swap Legs").pair = "legs"
+        col.separator()
+        col.prop(s, "pin_joint")
+        col.prop(s, "pin_candidate")
+        row = col.row(align=True)
+        op = row.operator(GESTUREPOSE_OT_pin_joint.bl_idname, text="Pin")
+        op.joint, op.candidate, op.target = s.pin_joint, s.pin_candidate, "ENVIRONMENT"
+        op = row.operator(GESTUREPOSE_OT_pin_joint.bl_idname, text="Unpin")
+        op.joint, op.target = s.pin_joint, "CLEAR"
+        col.operator(GESTUREPOSE_OT_edit_stick_figure.bl_idname, icon="GREASEPENCIL")
+
+
+def register_extra() -> None:
+    """Attach the panel's settings to the scene."""
+    bpy.types.Scene.gesture_pose_stick = bpy.props.PointerProperty(type=StickSettings)
+
+
+def unregister_extra() -> None:
+    """Remove the panel's settings."""
+    del bpy.types.Scene.gesture_pose_stick
+
+
+CLASSES = (StickSettings, GESTUREPOSE_OT_pose_stick_figure, GESTUREPOSE_OT_swap_sides,
+           GESTUREPOSE_OT_next_suggestion, GESTUREPOSE_OT_pin_joint,
+           GESTUREPOSE_OT_edit_stick_figure, VIEW3D_PT_gesture_pose_stick)
