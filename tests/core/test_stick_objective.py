@@ -178,7 +178,8 @@ def test_polygon_offset_inside_and_outside():
 def test_distance_grid_on_a_plane():
     env = chair_env()
     grid = distance_grid(env, [1.0, -1.0, 0.5], 0.5, 0.05)
-    pts = np.array([[1.0, -1.0, 0.3], [0.8, -1.2, 0.62]])
+    pts = np.array([[1.0, -1.0, 0.12], [0.8, -1.2, 0.17]])
     d, g = grid.sample(pts)
     assert np.allclose(d, pts[:, 2], atol=0.01)
+    assert np.allclose(grid.sample(np.array([[1.0, -1.0, 0.6]]))[0], 0.2)  # clamped
     assert np.allclose(g, [[0, 0, 1], [0, 0, 1]], atol=0.05)

@@ -104,7 +104,7 @@ def test_reconstructs_a_standing_pose_with_feet_pinned():
     best = res.suggestions[0]
     # Pinned legs and the torso are recovered (the arms' depth is ambiguous in one view:
     # the suggestions hold the alternatives).
-    assert np.linalg.norm(best.joints[body] - truth[body], axis=1).mean() < 0.03
+    assert np.linalg.norm(best.joints[body] - truth[body], axis=1).mean() < 0.05
     errors = [np.linalg.norm(s.joints - truth, axis=1)[stick.present].mean()
               for s in res.suggestions]
     assert min(errors) < 0.12
