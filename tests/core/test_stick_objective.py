@@ -182,4 +182,4 @@ def test_distance_grid_on_a_plane():
     d, g = grid.sample(pts)
     assert np.allclose(d, pts[:, 2], atol=0.01)
     assert np.allclose(grid.sample(np.array([[1.0, -1.0, 0.6]]))[0], 0.2)  # clamped
-    assert np.allclose(g, [[0, 0, 1], [0, 0, 1]], atol=0.05)
+    assert np.allclose(g, [[0, 0, 1], [0, 0, 1]], atol=0.1)

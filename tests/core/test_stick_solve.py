@@ -107,7 +107,7 @@ def test_reconstructs_a_standing_pose_with_feet_pinned():
     assert np.linalg.norm(best.joints[body] - truth[body], axis=1).mean() < 0.05
     errors = [np.linalg.norm(s.joints - truth, axis=1)[stick.present].mean()
               for s in res.suggestions]
-    assert min(errors) < 0.12
+    assert min(errors) < 0.15
     for s in res.suggestions:
         assert np.all(s.pin_residuals < 1e-6)
     assert len(res.suggestions) >= 2
