@@ -109,7 +109,8 @@ def _difference_rows(a: np.ndarray, b: np.ndarray, axis: np.ndarray, n_joints: i
 
 
 def conformity_term(frame: ViewFrame, joints2d: np.ndarray, a: np.ndarray, b: np.ndarray,
-                    lengths: np.ndarray, n_joints: int) -> LinearTerm:
+                    lengths: np.ndarray, n_joints: int,
+                    confidence: np.ndarray | None = None) -> LinearTerm:
     """E_c (Eq. 5): the projected 3D links match the drawn 2D links, slope and length.
 
     ``E_c = sum_ab w_ab || P (X_b - X_a) - (p_b - p_a) / scale ||^2`` with ``P`` the image
@@ -122,6 +123,7 @@ def conformity_term(frame: ViewFrame, joints2d: np.ndarray, a: np.ndarray, b: np
         b: Child joint of each link, shape ``(L,)``.
         lengths: Rest 3D length of each link, world units, shape ``(L,)``.
         n_joints: ``J``.
+        confidence: Extra factor on each link's weight, shape ``(L,)`` (default 1).
 
     Returns:
         The term, ``2L`` rows.
@@ -131,6 +133,8 @@ def conformity_term(frame: ViewFrame, joints2d: np.ndarray, a: np.ndarray, b: np
                              _difference_rows(a, b, frame.up, n_joints)])
     target = np.concatenate([drawn[:, 0], drawn[:, 1]])
     w = 1.0 / np.maximum(lengths, 1e-9) ** 2
+    if confidence is not None:
+        w = w * np.asarray(confidence, dtype=float)
     return LinearTerm("conformity", matrix, target, np.concatenate([w, w]))
 
 

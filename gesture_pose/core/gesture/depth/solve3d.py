@@ -45,6 +45,8 @@ class DepthOptions:
         free_ratio: Relative foreshortening below which a bone is free (paper: 0.6).
         bind_depth: Measure E_v's depth change from the bind pose's (ours; the paper's
             bind poses lie in the view plane, where both agree).
+        hidden_weight: E_c weight factor of links with a joint the 2D fit placed without
+            contour evidence (``joint_visible`` False); their place is a guess.
         parallel_angle: Drawn angle under which consecutive links get one 3D direction,
             radians (paper: 10 degrees).
         parallel_ratio_gap: Largest difference of the two links' drawn foreshortening for
@@ -66,6 +68,7 @@ class DepthOptions:
     sigma_f: float = 0.2
     free_ratio: float = 0.6
     bind_depth: bool = True
+    hidden_weight: float = 0.1
     parallel_angle: float = float(np.radians(10.0))
     parallel_ratio_gap: float = 0.1
     spline_weight: float = 1.0
@@ -163,7 +166,10 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
     n_j = jmap.n_joints
     ratios = energies.foreshortening_ratios(embedding.joints2d, a, b, lengths, frame.scale)
     weights = energies.foreshortening_weights(ratios, opts.sigma_f, opts.free_ratio)
-    terms = [energies.conformity_term(frame, embedding.joints2d, a, b, lengths, n_j),
+    visible = np.asarray(embedding.joint_visible, dtype=bool)
+    confidence = np.where(visible[a] & visible[b], 1.0, opts.hidden_weight)
+    terms = [energies.conformity_term(frame, embedding.joints2d, a, b, lengths, n_j,
+                                      confidence),
              energies.foreshortening_term(
                  frame, a, b, lengths, weights, n_j,
                  frame.depth(X_rest[b] - X_rest[a]) if opts.bind_depth else None)]
