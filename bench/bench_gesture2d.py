@@ -158,3 +158,59 @@ def run(quick: bool) -> list[tuple[str, list[str], list[list]]]:
              "height)", HEADERS, rows),
             ("Gesture3D 2D embedding: means per character and drawing", HEADERS,
              _summary(rows))]
+
+
+def render_doc_images(out_dir: Path, pose: str = "reach", size: int = 480) -> list[Path]:
+    """Render the docs pictures headless with Workbench on the sample humanoid.
+
+    First the traced drawing over the character, then the drawing with the fitted skeleton.
+
+    Args:
+        out_dir: Folder for ``gesture_input.png`` and ``gesture_fit.png``.
+        pose: Named humanoid pose.
+        size: Image width and height, pixels.
+
+    Returns:
+        The written files.
+    """
+    import bpy
+
+    from gesture_pose.blender.operators import fit_drawing as op
+    from gesture_pose.blender.read_view import camera_from_object
+    from sample_scenes import builders
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    arm, mesh = builders.build_humanoid()
+    builders.pose_humanoid(arm, pose)
+    cam = builders.add_camera(arm, direction=(0.35, -1.0, 0.1), resolution=(size, size))
+    bpy.context.view_layer.update()
+    camera = camera_from_object(cam, bpy.context.scene)
+    traced = op.trace_character(arm, camera)
+    sketch = op.write_traced("Drawing", traced, camera)
+    scene = bpy.context.scene
+    scene.render.engine = "BLENDER_WORKBENCH"
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.film_transparent = False
+    scene.world = scene.world or bpy.data.worlds.new("World")
+    scene.world.color = (1.0, 1.0, 1.0)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    scene.render.filepath = str(out_dir / "gesture_input.png")
+    bpy.ops.render.render(write_still=True)
+    written.append(out_dir / "gesture_input.png")
+    emb, _ = op.fit_scene_drawing(arm, sketch, camera)
+    depth = float(np.mean(camera.depth(np.concatenate(traced.world(camera)))))
+    op.draw_fit(sketch, emb, camera, depth - 0.3)
+    mesh.hide_render = True
+    scene.render.filepath = str(out_dir / "gesture_fit.png")
+    bpy.ops.render.render(write_still=True)
+    written.append(out_dir / "gesture_fit.png")
+    return written
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    for path in render_doc_images(Path(__file__).resolve().parents[1] / "docs" / "img"):
+        print(path)

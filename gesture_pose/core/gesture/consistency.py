@@ -130,8 +130,10 @@ def _overlaps(problem: MatchProblem, left: list[np.ndarray], right: list[np.ndar
 def block_overlaps(problem: MatchProblem, assign: Assignment) -> np.ndarray:
     """Samples each bone may no longer claim, resolving the overlaps of ``assign``.
 
-    Of two overlapping bones (or joints) the later one in the skeleton yields: it may not
-    use the samples of the other, so the next solve moves it to other contours.
+    Of two overlapping bones (or joints) the one whose middle lies farther from the shared
+    samples in the view at the current pose yields (the later one in the skeleton when
+    there is no reference): it may not use the other's samples, so the next solve moves it
+    to other contours.
 
     Returns:
         Blocked samples per solving bone, ``(m, N)`` bool.
@@ -147,9 +149,19 @@ def block_overlaps(problem: MatchProblem, assign: Assignment) -> np.ndarray:
         bone = link if link >= 0 else int(np.flatnonzero(s.head_joint == j)[0])
         return bone, assign.joint_samples[j]
 
+    ref = problem.reference
+
+    def distance(bone: int, samples: np.ndarray) -> float:
+        if ref is None or samples.size == 0:
+            return float(bone)
+        mid = 0.5 * (ref[s.head_joint[bone]] + ref[s.tail_joint[bone]])
+        return float(np.linalg.norm(problem.drawing.points[samples].mean(axis=0) - mid))
+
     for a, b in assign.overlaps:
         (bone_a, samples_a), (bone_b, samples_b) = claim(a), claim(b)
-        loser, winner_samples = (bone_b, samples_a) if bone_b >= bone_a else (bone_a, samples_b)
+        shared = np.intersect1d(samples_a, samples_b)
+        a_loses = distance(bone_a, shared) > distance(bone_b, shared)
+        loser, winner_samples = (bone_a, samples_b) if a_loses else (bone_b, samples_a)
         blocked[loser, winner_samples] = True
     return blocked
 

@@ -153,6 +153,7 @@ class MatchProblem:
             pixels, ``(J, 2)`` (used by rigid links).
         blocked: Contour samples each solving bone may not claim, ``(m, N)`` bool, or None
             (set by the consistency step to resolve overlaps).
+        reference: The joints in the view at the current pose, pixels, ``(J, 2)``.
     """
 
     drawing: Drawing
@@ -163,6 +164,7 @@ class MatchProblem:
     params: CostParams
     link_offset: np.ndarray
     blocked: np.ndarray | None = None
+    reference: np.ndarray | None = None
 
     def bone_blocked(self, j: int) -> np.ndarray | None:
         """Blocked samples of the bone linking joint ``j`` to its parent (None if free)."""
@@ -203,7 +205,8 @@ def make_problem(drawing: Drawing, solving: SolvingSkeleton, pixels_per_unit: fl
             angle[j] = float(np.arccos(np.clip(c, -1.0, 1.0)))
     offset = np.zeros((n, 2))
     offset[has] = reference[has] - reference[par[has]]
-    return MatchProblem(drawing, solving, length, angle, solving.terminal, params, offset)
+    return MatchProblem(drawing, solving, length, angle, solving.terminal, params, offset,
+                        reference=np.asarray(reference, float))
 
 
 def link_table(problem: MatchProblem, j: int, a: JointCandidates,
