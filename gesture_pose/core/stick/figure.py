@@ -38,7 +38,7 @@ HUMANOID_JOINTS: tuple[tuple[str, str | None, bool], ...] = (
 )
 
 _ROLE_WORDS: dict[str, tuple[str, ...]] = {
-    "pelvis": ("pelvis", "hips", "hip", "root"),
+    "pelvis": ("pelvis", "hips", "hip"),
     "neck": ("neck",),
     "head": ("head",),
     "upper_arm": ("upperarm", "arm", "uparm"),
