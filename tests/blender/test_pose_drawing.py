@@ -208,3 +208,29 @@ def test_pose_is_the_first_button_of_the_tab(registered):
     assert bpy.ops.gesture_pose.flip_depth.get_rna_type().name == "Flip Depth"
     props = bpy.ops.gesture_pose.pose_drawing.get_rna_type().properties
     assert props["insert_keys"].default and props["show_fit"].default
+
+
+def test_pose_stroke_refines_a_limb_after_pose(registered, monkeypatch):
+    arm, cam, bind, truth = _character("humanoid", "step", (0.0, -1.0, 0.0))
+    chain = ["upper_arm.L", "forearm.L", "hand.L", "fingers.L"]
+    stroke = builders.chain_stroke(arm, bpy.context.scene.camera, chain,
+                                   builders.HUMANOID_POSES["raise_left_arm"])
+    sketch = builders.add_grease_pencil("Sketch", [np.array([[0.0, -1.0, 0.0],
+                                                             [0.1, -1.0, 0.5]])])
+
+    def oracle_fit(strokes, skeleton, pose, vertices, camera, weights=None, **_kw):
+        return project_embedding(skeleton, solving_skeleton(skeleton), truth.pose, camera,
+                                 0.06, "auto")
+
+    monkeypatch.setattr(pose_drawing, "fit_drawing", oracle_fit)
+    pose_drawing.pose_from_drawing(arm, sketch, cam)
+    bpy.context.view_layer.update()
+    posed = read_armature(arm)
+    refine = builders.add_grease_pencil("Refine", [stroke])
+    with bpy.context.temp_override(active_object=arm, object=arm):
+        assert bpy.ops.gesture_pose.pose_stroke(armature=arm.name,
+                                                sketch=refine.name) == {"FINISHED"}
+    after = read_armature(arm)
+    moved = np.abs(after.pose.rotations - posed.pose.rotations).max(axis=(1, 2)) > 1e-6
+    assert {after.names[i] for i in np.flatnonzero(moved)} <= set(chain)
+    assert moved[after.skeleton.index("upper_arm.L")]

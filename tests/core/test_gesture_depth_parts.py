@@ -98,6 +98,12 @@ def test_conformity_is_zero_for_the_drawn_pose_and_matches_its_definition():
     proj = np.stack([d @ frame.right, d @ frame.up], 1)
     expected = np.sum(np.sum((proj - drawn) ** 2, axis=1) / lengths**2)
     assert term.value(Y) == pytest.approx(expected, rel=1e-12)
+    # A link's confidence scales its weight (hidden joints are guesses).
+    conf = np.linspace(0.1, 1.0, len(a))
+    scaled = energies.conformity_term(frame, emb.joints2d, a, b, lengths, solving.n_joints,
+                                      conf)
+    per_link = np.sum((proj - drawn) ** 2, axis=1) / lengths**2
+    assert scaled.value(Y) == pytest.approx(np.sum(conf * per_link), rel=1e-12)
 
 
 def _embedding_with_pieces(base: Embedding2D, pieces: dict[int, list[np.ndarray]],
