@@ -35,6 +35,7 @@ from .normalize import drawing_scale, normalize_figure
 from .objective import StickObjective, Weights
 from .pins import EnvPinSpec, LimbPinSpec, pin_offsets, resolve_pins
 from .refine import place_joints, refine
+from .threads import single_thread_blas
 
 
 @dataclass(frozen=True)
@@ -221,6 +222,23 @@ def _end_group_genes(model: PoseModel, joint: int) -> np.ndarray:
 
 
 def solve_stick(inp: StickInput) -> StickResult:
+    """Pose the character from a drawn stick figure (BLAS single-threaded meanwhile).
+
+    Args:
+        inp: The problem.
+
+    Returns:
+        Distinct suggestions, best first, with diagnostics.
+
+    Raises:
+        InputError: The drawing does not match the character, or bad pins.
+        SolverError: No finite solution was found.
+    """
+    with single_thread_blas():
+        return _solve(inp)
+
+
+def _solve(inp: StickInput) -> StickResult:
     """Pose the character from a drawn stick figure.
 
     Args:
@@ -372,7 +390,7 @@ def _finish(objective: StickObjective, x: np.ndarray, bounds: np.ndarray, env_pi
         if genes.size == 0 or objective.grid is None:
             continue
         lo, hi = bounds[genes, 0], bounds[genes, 1]
-        axes = [np.linspace(lo[k], hi[k], 7) for k in range(genes.size)]
+        axes = [np.linspace(lo[k], hi[k], 5) for k in range(genes.size)]
         grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, genes.size)
         X = np.repeat(x[None], len(grid), 0)
         X[:, genes] = grid
