@@ -152,7 +152,8 @@ class _Setup:
 
 
 def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pose,
-           opts: DepthOptions) -> tuple[_Setup, np.ndarray, np.ndarray, tuple[str, ...]]:
+           opts: DepthOptions, link_confidence: np.ndarray | None = None
+           ) -> tuple[_Setup, np.ndarray, np.ndarray, tuple[str, ...]]:
     """Drawing cues, terms and constraints (step 1 of the module docstring)."""
     s = embedding.solving
     jmap = twist.joint_map(skeleton, s)
@@ -168,6 +169,8 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
     weights = energies.foreshortening_weights(ratios, opts.sigma_f, opts.free_ratio)
     visible = np.asarray(embedding.joint_visible, dtype=bool)
     confidence = np.where(visible[a] & visible[b], 1.0, opts.hidden_weight)
+    if link_confidence is not None:
+        confidence = confidence * np.asarray(link_confidence, dtype=float)
     terms = [energies.conformity_term(frame, embedding.joints2d, a, b, lengths, n_j,
                                       confidence),
              energies.foreshortening_term(
@@ -310,7 +313,8 @@ def _dof_rows(skeleton: Skeleton, jmap: twist.JointMap, pose: Pose, frames: np.n
 def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
                  pose: Pose | None = None, *, lock_rotation: np.ndarray | None = None,
                  ik_limits: np.ndarray | None = None, pinned: np.ndarray | None = None,
-                 options: DepthOptions | None = None) -> Pose3DResult:
+                 options: DepthOptions | None = None,
+                 link_confidence: np.ndarray | None = None) -> Pose3DResult:
     """Lift a 2D skeletal embedding to the 3D pose it depicts (Gesture3D Section 7).
 
     Args:
@@ -325,6 +329,8 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
             unlimited (optional).
         pinned: Bones that must keep their bind rotation, ``(n,)`` bool (optional).
         options: Parameters (paper defaults).
+        link_confidence: Extra E_c weight factor per joint-tree link (links ordered by
+            child joint, as :func:`energies.joint_links`), shape ``(L,)`` (optional).
 
     Returns:
         The solved pose and diagnostics.
@@ -338,7 +344,8 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     base = pose if pose is not None else Pose.identity(skeleton.n_bones)
     bones = np.asarray(embedding.solving.bones, dtype=int)
     bind = base.with_rotations(bones, np.tile(np.eye(3), (len(bones), 1, 1)))
-    setup, X_rest, contacts, names = _setup(skeleton, embedding, camera, bind, opts)
+    setup, X_rest, contacts, names = _setup(skeleton, embedding, camera, bind, opts,
+                                            link_confidence)
     timings = {"setup": time.perf_counter() - t0}
     t1 = time.perf_counter()
     current, _ = _start(skeleton, setup, embedding, bind, opts, pinned)
