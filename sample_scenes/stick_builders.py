@@ -178,3 +178,50 @@ def save_stick_scene(path: str | Path, pose: str = "sit") -> Path:
     path = Path(path)
     bpy.ops.wm.save_as_mainfile(filepath=str(path), compress=True)
     return path
+
+
+def render_png(path: str | Path, size: tuple[int, int] = (480, 360)) -> Path:
+    """Render the scene camera's view with Workbench (strokes included) to a PNG."""
+    scene = bpy.context.scene
+    old = (scene.render.resolution_x, scene.render.resolution_y,
+           scene.render.resolution_percentage)
+    scene.display.shading.light = "STUDIO"
+    scene.display.shading.color_type = "OBJECT"
+    scene.render.resolution_x, scene.render.resolution_y = size
+    scene.render.resolution_percentage = 100
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.filepath = str(path)
+    scene.render.engine = "BLENDER_WORKBENCH"
+    bpy.ops.render.render(write_still=True)
+    (scene.render.resolution_x, scene.render.resolution_y,
+     scene.render.resolution_percentage) = old
+    return Path(path)
+
+
+def render_stick_images(outdir: str | Path, pose: str = "sit") -> list[Path]:
+    """Pictures for the docs: the drawing over the scene, then the solved pose.
+
+    Builds the sample scene, pins both ankles to the floor, runs Pose Stick Figure and
+    renders before and after (``stick_<pose>_input.png``, ``stick_<pose>_result.png``).
+    """
+    outdir = Path(outdir)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    import gesture_pose
+
+    if not hasattr(bpy.types.Scene, "gesture_pose_stick"):
+        gesture_pose.register()
+    sc = build_stick_scene(pose)
+    colours = {"Floor": (0.8, 0.8, 0.8, 1), "Chair": (0.55, 0.35, 0.2, 1),
+               "Stool": (0.3, 0.45, 0.6, 1), "Table": (0.5, 0.4, 0.3, 1)}
+    for obj in sc["environment"].objects:
+        obj.color = colours.get(obj.name, (0.7, 0.7, 0.7, 1))
+    sc["mesh"].color = (0.9, 0.75, 0.6, 1)
+    arm, sketch = sc["armature"], sc["sketch"]
+    sketch.scale = (1.0, 1.0, 1.0)
+    out = [render_png(outdir / f"stick_{pose}_input.png")]
+    with bpy.context.temp_override(active_object=arm, object=arm, selected_objects=[arm]):
+        for joint in ("ankle.L", "ankle.R"):
+            bpy.ops.gesture_pose.pin_joint(armature=arm.name, sketch=sketch.name, joint=joint)
+        bpy.ops.gesture_pose.pose_stick_figure(armature=arm.name, sketch=sketch.name)
+    out.append(render_png(outdir / f"stick_{pose}_result.png"))
+    return out
