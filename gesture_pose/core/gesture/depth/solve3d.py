@@ -244,30 +244,35 @@ def _start(skeleton: Skeleton, setup: _Setup, embedding: Embedding2D, bind: Pose
     if not setup.order:
         return pose, signs
 
-    def badness(p: Pose) -> float:
-        X, _ = twist.joint_positions(skeleton, jm, p)
-        return float(np.sum(ordering.violations(setup.order, f.depth(X))))
-
-    current = badness(pose)
+    # Greedy flips on a linear model of the depths: flipping bone k moves every joint below
+    # its tail by -2 s_k m_k along the view (rigid offsets turning with it are ignored
+    # here; the SQP enforces the constraints exactly).
+    X, _ = twist.joint_positions(skeleton, jm, pose)
+    depth = f.depth(X)
     s = embedding.solving
     drawn = np.linalg.norm(embedding.joints2d[s.tail_joint] - embedding.joints2d[s.head_joint],
                            axis=1) / f.scale
-    lifted = np.flatnonzero((drawn < 0.98 * skeleton.lengths[jm.bones]) & ~fixed)
+    lengths = skeleton.lengths[jm.bones]
+    lift = np.sqrt(np.maximum(lengths**2 - drawn**2, 0.0))
+    lifted = np.flatnonzero((drawn < 0.98 * lengths) & ~fixed)
+    shift = jm.moves[:, lifted].astype(float) * lift[lifted]
+
+    def badness(d: np.ndarray) -> float:
+        return float(np.sum(ordering.violations(setup.order, d)))
+
+    current, flipped = badness(depth), False
     for _ in range(len(lifted)):
         if current <= 1e-12:
             break
-        best, best_pose, best_k = current, None, -1
-        for k in lifted:
-            trial = signs.copy()
-            trial[k] = -trial[k]
-            p = _lifted_pose(skeleton, setup, embedding, bind, trial, fixed)
-            v = badness(p)
-            if v < best - 1e-12:
-                best, best_pose, best_k = v, p, k
-        if best_pose is None:
+        trials = depth[:, None] - 2.0 * signs[lifted] * shift
+        scores = np.array([badness(trials[:, i]) for i in range(len(lifted))])
+        if not len(scores) or scores.min() >= current - 1e-12:
             break
-        signs[best_k] = -signs[best_k]
-        pose, current = best_pose, best
+        i = int(np.argmin(scores))
+        signs[lifted[i]] = -signs[lifted[i]]
+        depth, current, flipped = trials[:, i], scores[i], True
+    if flipped:
+        pose = _lifted_pose(skeleton, setup, embedding, bind, signs, fixed)
     return pose, signs
 
 
