@@ -34,20 +34,10 @@ QUADRUPED_VIEWS = {"side": (1.0, 0.0, 0.0), "oblique": (1.0, -0.6, 0.2)}
 
 def metrics(solving, skeleton, truth_pose, joints3d: np.ndarray, camera) -> tuple[float, float]:
     """Mean joint error (% of height, root aligned) and correct depth-order rate."""
-    from gesture_pose.core.gesture.embedding import posed_joints
+    from gesture_pose.core.gesture.depth.evaluation import joints_of, pose_error
 
-    truth = posed_joints(solving, skeleton, truth_pose)
-    got = joints3d - joints3d[0] + truth[0]
-    pts = np.concatenate([skeleton.rest_heads, skeleton.rest_tails])
-    height = float(np.ptp(pts, axis=0).max())
-    err = 100.0 * float(np.linalg.norm(got - truth, axis=1).mean()) / height
-    dt, dg = camera.depth(truth), camera.depth(got)
-    gap_t = dt[:, None] - dt[None]
-    gap_g = dg[:, None] - dg[None]
-    pairs = np.triu(np.abs(gap_t) > 0.05 * height, 1)
-    rate = float(np.mean(np.sign(gap_t[pairs]) == np.sign(gap_g[pairs]))) if pairs.any() \
-        else float("nan")
-    return err, rate
+    err = pose_error(joints_of(solving, skeleton, truth_pose), joints3d, skeleton, camera)
+    return err.mean_error, err.depth_order
 
 
 def _scene(kind: str, direction, ortho: bool = False):

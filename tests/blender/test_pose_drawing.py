@@ -138,12 +138,35 @@ def test_pose_operator_on_a_traced_drawing(traced_humanoid):
                                after.skeleton.lengths, rtol=1e-5)
     fit = sketch.data.layers.get(pose_drawing.FIT_LAYER)
     assert fit is not None and len(fit.current_frame().drawing.strokes) == solving.n_bones
+    # The drawn pose is recovered (the 2D fit's errors carry into 3D).
+    err, sign_truth, sign_got = _errors(solving, after.skeleton, truth.pose, after.pose, cam)
+    assert err < 12.0
+    assert np.array_equal(sign_truth, sign_got)
     # The fit layer is not read back as drawing: posing again gives the same pose.
     with bpy.context.temp_override(active_object=arm, object=arm):
         assert bpy.ops.gesture_pose.pose_drawing(armature=arm.name,
                                                  sketch=sketch.name) == {"FINISHED"}
     np.testing.assert_allclose(read_armature(arm).pose.rotations, after.pose.rotations,
                                atol=1e-6)
+
+
+def test_pose_on_a_traced_quadruped(registered):
+    arm, cam, bind, truth = _character("quadruped", "paw_forward", (1.0, 0.0, 0.0))
+    builders.apply_rotations(arm, builders.QUADRUPED_POSES["paw_forward"])
+    bpy.context.view_layer.update()
+    meshes = read_skinned_meshes(arm, truth.skeleton)
+    traced = trace_contours(meshes.deformed_vertices, meshes.triangles, cam)
+    builders.reset_pose(arm)
+    bpy.context.view_layer.update()
+    sketch = builders.add_grease_pencil("Sketch", list(traced.world(cam)))
+    rep = pose_drawing.pose_from_drawing(arm, sketch, cam, show_fit=False)
+    assert rep.written and rep.result.converged
+    bpy.context.view_layer.update()
+    err, sign_truth, sign_got = _errors(rep.embedding.solving, bind.skeleton, truth.pose,
+                                        read_armature(arm).pose, cam)
+    assert err < 15.0
+    assert np.array_equal(sign_truth, sign_got)
+    assert rep.timings["solve3d"] < 5.0
 
 
 def test_pose_restarts_from_the_bind_pose(registered, monkeypatch):

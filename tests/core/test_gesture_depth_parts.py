@@ -305,3 +305,21 @@ def test_spline_term_is_zero_on_quadratic_depths_only():
     free[3] = True  # a deliberately foreshortened link splits the limb into short runs
     split = regularity.spline_term(emb, solving.rest_joints, frame, free=free)
     assert len(split.target) == 0
+
+
+def test_pose_error_aligns_the_root_and_counts_depth_order():
+    from gesture_pose.core.gesture.depth import pose_error
+
+    sk = tree_skeleton()
+    cam = front_camera(ortho=True)
+    truth = np.array([[0.0, 0.0, 0.0], [0.0, 0.5, 1.0], [1.0, -0.5, 1.0]])
+    shifted = truth + np.array([3.0, 2.0, 1.0])  # same pose elsewhere
+    err = pose_error(truth, shifted, sk, cam)
+    assert err.mean_error == pytest.approx(0.0, abs=1e-12)
+    assert err.depth_order == 1.0
+    assert err.height == pytest.approx(2.3)  # x extent of the tree's rest bones
+    flipped = truth * np.array([1.0, -1.0, 1.0])  # every depth mirrored
+    err = pose_error(truth, flipped, sk, cam)
+    assert err.depth_order == 0.0
+    assert err.max_error == pytest.approx(100.0 * 1.0 / 2.3)
+    assert err.mean_error == pytest.approx(100.0 * (0 + 1.0 + 1.0) / 3 / 2.3)

@@ -6,6 +6,7 @@ drawing leaves open.
 """
 
 from .energies import ViewFrame, view_frame
+from .evaluation import PoseError, joints_of, pose_error
 from .ordering import OrderingConstraint, ordering_constraints
 from .qp import LinearConstraint, QPProblem, QPResult, build_qp, solve_qp
 from .solve3d import DepthOptions, Pose3DResult, solve_pose3d
@@ -15,13 +16,16 @@ __all__ = [
     "DepthOptions",
     "LinearConstraint",
     "OrderingConstraint",
+    "PoseError",
     "Pose3DResult",
     "QPProblem",
     "QPResult",
     "ViewFrame",
     "build_qp",
     "flip_depth",
+    "joints_of",
     "ordering_constraints",
+    "pose_error",
     "solve_pose3d",
     "solve_qp",
     "symmetrize",
