@@ -1,7 +1,7 @@
 """The "Pose" and "Flip Depth" operators: pose a character from a gesture drawing.
 
 Pose reads the armature, its skinned meshes, the view and the drawing once, fits the 2D
-skeletal embedding (:func:`gesture_pose.core.gesture.embedding.fit_drawing`, Gesture3D
+skeletal embedding as Fit Drawing does (:func:`.fit_drawing.fit_scene_drawing`, Gesture3D
 Sections 4-6), lifts it to 3D (:func:`gesture_pose.core.gesture.depth.solve_pose3d`,
 Section 7), then writes and keys the changed solving bones at the current frame. Every
 Pose starts from the bind pose of the solving bones, so posing again after editing the
@@ -23,23 +23,17 @@ import numpy as np
 from ...core.camera import Camera
 from ...core.exceptions import InputError
 from ...core.gesture.depth import DepthOptions, Pose3DResult, flip_depth, solve_pose3d
-from ...core.gesture.embedding import fit_drawing
 from ...core.gesture.types import Embedding2D
-from ...core.skeleton import Pose
 from ..operator_utils import (
     GesturePoseOperatorMixin,
     report_result,
     resolve_armature,
     resolve_sketch,
 )
-from ..read_armature import ArmatureData, read_armature
-from ..read_mesh import read_skinned_meshes
-from ..read_strokes import read_sketch, strokes_to_2d, write_strokes
+from ..read_armature import read_armature
 from ..read_view import camera_from_context
 from ..write_pose import apply_pose
-
-#: Grease Pencil layer the fitted skeleton is drawn into (never read back as drawing).
-FIT_LAYER = "Gesture Fit"
+from .fit_drawing import FIT_LAYER, draw_fit, fit_scene_drawing
 
 
 @dataclass(frozen=True)
@@ -51,7 +45,8 @@ class PoseDrawingReport:
         result: The 3D solve.
         written: Names of the bones written (and keyed).
         seconds: Wall time of the whole Pose, seconds.
-        timings: Seconds per stage (``"read"``, ``"fit"``, ``"solve3d"``, ``"write"``).
+        timings: Seconds per stage (``"fit"`` with reading the scene, ``"solve3d"``,
+            ``"write"``).
     """
 
     embedding: Embedding2D
@@ -59,20 +54,6 @@ class PoseDrawingReport:
     written: tuple[str, ...]
     seconds: float
     timings: dict
-
-
-def _bind_pose(data: ArmatureData, bones: np.ndarray | None = None) -> Pose:
-    """The current pose with the given bones (default: every deforming bone) at rest."""
-    idx = np.flatnonzero(data.skeleton.deform) if bones is None else np.asarray(bones, int)
-    return data.pose.with_rotations(idx, np.tile(np.eye(3), (len(idx), 1, 1)))
-
-
-def _fit_polylines(embedding: Embedding2D, camera: Camera, depth: float) -> list[np.ndarray]:
-    """The fitted skeleton as world polylines at ``depth``: one 2-point line per bone."""
-    heads, tails = embedding.bone_points()
-    pts = camera.unproject_at_depth(np.concatenate([heads, tails]), depth)
-    m = len(heads)
-    return [np.stack([pts[k], pts[m + k]]) for k in range(m)]
 
 
 def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
@@ -87,7 +68,8 @@ def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
         camera: The view the drawing was made in.
         frame: Scene frame whose drawing is read and keyed (the current frame when None).
         insert_keys: Key the changed bones in their rotation modes.
-        show_fit: Draw the fitted skeleton into the sketch's "Gesture Fit" layer.
+        show_fit: Keep the fit shown in the sketch's fit layer (as Fit Drawing draws it);
+            off removes that layer.
         options: 3D solve parameters (the paper's defaults when None).
         progress: Called with the fraction done, in ``[0, 1]``.
 
@@ -99,40 +81,28 @@ def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
     """
     tick = progress or (lambda _f: None)
     t0 = time.perf_counter()
-    scene = bpy.context.scene
-    frame = scene.frame_current if frame is None else int(frame)
+    frame = bpy.context.scene.frame_current if frame is None else int(frame)
     data = read_armature(arm_obj)
-    strokes = [s for s in read_sketch(sketch_obj, frame)
-               if not s.layer_name.startswith(FIT_LAYER)]
-    if not strokes:
-        raise InputError(f"'{sketch_obj.name}' has no strokes at frame {frame}: draw the "
-                         "character's contours over it first.")
-    strokes_2d = strokes_to_2d(strokes, camera)
-    bind = _bind_pose(data)
-    meshes = read_skinned_meshes(arm_obj, data.skeleton, state=data.skeleton.forward(bind))
-    timings = {"read": time.perf_counter() - t0}
-    tick(0.15)
+    tick(0.05)
+    embedding, _ = fit_scene_drawing(arm_obj, sketch_obj, camera, frame)
+    timings = {"fit": time.perf_counter() - t0}
+    tick(0.8)
     t1 = time.perf_counter()
-    embedding = fit_drawing(strokes_2d, data.skeleton, bind, meshes.rest_vertices, camera,
-                            meshes.weights, override=data.gesture_override)
-    timings["fit"] = time.perf_counter() - t1
-    tick(0.7)
-    t2 = time.perf_counter()
     result = solve_pose3d(data.skeleton, embedding, camera, data.pose,
                           lock_rotation=data.lock_rotation, ik_limits=data.ik_limits,
                           pinned=data.pinned, options=options)
-    timings["solve3d"] = time.perf_counter() - t2
-    tick(0.9)
-    t3 = time.perf_counter()
+    timings["solve3d"] = time.perf_counter() - t1
+    tick(0.95)
+    t2 = time.perf_counter()
     written = apply_pose(arm_obj, data, result.pose, bones=[int(b) for b in result.bones],
                          insert_keys=insert_keys, frame=frame)
-    if show_fit and sketch_obj.type == "GREASEPENCIL":
-        depth = float(np.mean(camera.depth(result.joints3d)))
-        write_strokes(sketch_obj, FIT_LAYER, _fit_polylines(embedding, camera, depth),
-                      frame=frame, color=(0.1, 0.6, 1.0, 1.0))
-    elif sketch_obj.type == "GREASEPENCIL" and sketch_obj.data.layers.get(FIT_LAYER):
-        sketch_obj.data.layers.remove(sketch_obj.data.layers[FIT_LAYER])
-    timings["write"] = time.perf_counter() - t3
+    if sketch_obj.type == "GREASEPENCIL":
+        if show_fit:
+            draw_fit(sketch_obj, embedding, camera,
+                     float(np.mean(camera.depth(result.joints3d))), frame)
+        elif sketch_obj.data.layers.get(FIT_LAYER) is not None:
+            sketch_obj.data.layers.remove(sketch_obj.data.layers[FIT_LAYER])
+    timings["write"] = time.perf_counter() - t2
     tick(1.0)
     return PoseDrawingReport(embedding, result, tuple(written), time.perf_counter() - t0,
                              timings)
@@ -191,7 +161,7 @@ class GESTUREPOSE_OT_pose_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
                                         description="Key the changed bones")
     show_fit: bpy.props.BoolProperty(name="Show Fit", default=True,
                                      description=f"Keep the fitted skeleton in the sketch's "
-                                     f"'{FIT_LAYER}' layer")
+                                     f"'{FIT_LAYER}' layer (off: remove that layer)")
 
     def run(self, context: bpy.types.Context) -> set[str]:
         """Read, fit, lift, then write and key (see the module docstring)."""
