@@ -96,7 +96,8 @@ def sample_rows(quick: bool) -> list[list]:
             arm, _ = builders.build_quadruped()
             if pose != "rest":
                 builders.apply_rotations(arm, builders.QUADRUPED_POSES[pose])
-        cam = builders.add_camera(arm, direction=views[view], resolution=(800, 800))
+        cam = builders.add_camera(arm, direction=views[view], resolution=(800, 800),
+                                  margin=1.4)
         bpy.context.view_layer.update()
         camera = camera_from_object(cam, bpy.context.scene)
         for drawing, traced in _drawings(arm, camera):

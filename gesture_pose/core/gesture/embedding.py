@@ -48,7 +48,8 @@ class GestureParams:
         max_radii: Most candidate radii per joint.
         min_coverage: Coverage the consistency step requires.
         overlap_penalty: Penalty per overlapping pair of bones or joints.
-        max_terminal_rounds: Terminal re-assignments tried by the consistency step.
+        max_terminal_rounds: Overlap-resolving re-solves of the consistency step.
+        max_terminal_trials: Re-solves trying better end caps for terminal joints.
         symmetric_tolerance: Energy slack within which symmetric permutations compete.
         min_drawing_ratio: Smallest drawing diagonal relative to the character's.
     """
@@ -69,6 +70,7 @@ class GestureParams:
     min_coverage: float = 0.85
     overlap_penalty: float = 10.0
     max_terminal_rounds: int = 3
+    max_terminal_trials: int = 2
     symmetric_tolerance: float = 0.5
     min_drawing_ratio: float = 0.25
 
@@ -102,15 +104,29 @@ def _near(cands: JointCandidates, centre: np.ndarray, reach: float, count: int
 
 
 def _two_pass(problem, contour: list[JointCandidates], mid_r: np.ndarray, params,
-              zones: dict[int, list[np.ndarray]], cache: dict | None = None
+              zones: dict[int, list[np.ndarray]], cache: dict | None = None,
+              restrict: dict[int, np.ndarray] | None = None
               ) -> tuple[list[JointCandidates], np.ndarray, float]:
     """Coarse DP (many candidates, pairwise factors) then fine DP with triplets.
+
+    Args:
+        problem: The matching problem.
+        contour: Contour candidates of every joint.
+        mid_r: Middle radius of every joint (for grid candidates), pixels, ``(J,)``.
+        params: Embedding parameters.
+        zones: Per joint, positions whose neighbourhood is penalized.
+        cache: Pairwise tables of earlier solves.
+        restrict: Joints forced near a position (terminal enumeration): only their contour
+            candidates within 1.5 epsilon of it, no grid.
 
     Returns:
         ``(fine candidate sets, labels, energy)``.
     """
     d = problem.drawing
     eps = d.epsilon
+    restrict = restrict or {}
+    contour = [_near(c, restrict[j], 1.5 * eps, len(c)) if j in restrict else c
+               for j, c in enumerate(contour)]
     area = float(np.prod(np.maximum(d.bbox[1] - d.bbox[0], eps)))
     spacing = max(eps, np.sqrt(area / params.coarse_grid))
     pen = params.overlap_penalty
@@ -118,6 +134,7 @@ def _two_pass(problem, contour: list[JointCandidates], mid_r: np.ndarray, params
     for j, c in enumerate(contour):
         pool = best(consolidate(c, params.coarse_cell * eps), params.coarse_candidates)
         grid = grid_candidates(d, spacing, mid_r[j], params=params.costs)
+        grid = grid.take(np.zeros(0, int)) if j in restrict and len(pool) else grid
         coarse.append(_penalized(JointCandidates.concat([pool, grid]), zones.get(j, []),
                                  2 * eps, pen))
     coarse = _with_rigid(problem, coarse, zones, pen)
@@ -135,11 +152,65 @@ def _two_pass(problem, contour: list[JointCandidates], mid_r: np.ndarray, params
     for j, c in enumerate(contour):
         near = _near(c, first.positions[j], params.fine_reach * eps, params.max_candidates)
         grid = grid_candidates(d, eps, mid_r[j], first.positions[j], reach, params.costs)
+        grid = grid.take(np.zeros(0, int)) if j in restrict and len(near) else grid
         fine.append(_penalized(JointCandidates.concat([near, grid]), zones.get(j, []),
                                2 * eps, pen))
     fine = _with_rigid(problem, fine, zones, pen)
     labels, energy = solve_tree(build_energy(problem, fine, cache=cache))
     return fine, labels, energy
+
+
+def _enumerate_terminals(problem, base, contour: list[JointCandidates], mid_r: np.ndarray,
+                         params, cache: dict, conf: JointCandidates
+                         ) -> tuple[JointCandidates, int]:
+    """Try better end caps for terminal joints while coverage stays below the minimum.
+
+    Terminal joints are visited from the worst fitting; each tries the free end-cap sites
+    of its candidates in increasing unary cost (at most two, ``max_terminal_trials`` in
+    all), and a re-solve with the joint forced there is kept when it covers more of the
+    drawing without adding overlaps (Section 5.4's enumeration of terminal assignments).
+
+    Returns:
+        ``(configuration, number of re-solves)``.
+    """
+    d = problem.drawing
+    eps = d.epsilon
+    assign = assign_contours(base, conf)
+    terminals = np.flatnonzero(problem.terminal)
+    if assign.coverage >= params.min_coverage or terminals.size == 0:
+        return conf, 0
+    current = np.array([unary_cost(d, conf.positions[j:j + 1], conf.radii[j:j + 1], True,
+                                   problem.params)[0][0] for j in terminals])
+    restrict: dict[int, np.ndarray] = {}
+    trials = 0
+    for j, cur in sorted(zip(terminals, current, strict=True), key=lambda t: -t[1]):
+        sites = consolidate(contour[j], 3 * eps)
+        sites = sites.take(np.argsort(sites.unary, kind="stable"))
+        taken = conf.positions[terminals]
+        free = (np.linalg.norm(sites.positions[:, None] - taken[None], axis=2) > 3 * eps).all(1)
+        # Within reach of the parent joint as placed now.
+        p = problem.solving.joint_parent[j]
+        if p >= 0:
+            reach = 1.2 * problem.link_length[j] + 2 * eps
+            free &= np.linalg.norm(sites.positions - conf.positions[p], axis=1) <= reach
+        sites = sites.take(np.flatnonzero(free & (sites.unary < cur - 0.25))[:2])
+        for site in sites.positions:
+            if trials >= params.max_terminal_trials:
+                return conf, trials
+            trials += 1
+            trial = dict(restrict)
+            trial[int(j)] = site
+            cands, labels, _ = _two_pass(problem, contour, mid_r, params, {}, cache, trial)
+            new = configuration(cands, labels)
+            got = assign_contours(base, new)
+            if (len(got.overlaps) <= len(assign.overlaps)
+                    and got.coverage > assign.coverage + 0.02
+                    and joint_energy(base, new)[0] <= joint_energy(base, conf)[0] + 0.5):
+                conf, assign, restrict = new, got, trial
+                break
+        if assign.coverage >= params.min_coverage:
+            break
+    return conf, trials
 
 
 def _with_rigid(problem, cands: list[JointCandidates], zones, pen: float
@@ -248,6 +319,7 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
         cands, labels, energy = _two_pass(problem, contour, mid_r, params, {}, cache)
         conf = configuration(cands, labels)
     (n_bad, _, _), conf, problem = best_sol
+    conf, trials = _enumerate_terminals(problem, base, contour, mid_r, params, cache, conf)
     if n_bad:
         warnings.append(f"{n_bad} pairs of body parts claim the same contour.")
     limbs = symmetric_limbs(problem)
@@ -266,6 +338,7 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
     t0 = time.perf_counter()
     conf, refine_info = refine(problem, conf, reference, params.refine)
     timings["refine"] = time.perf_counter() - t0
+    refine_info["terminal_trials"] = trials
     return _result(problem, conf, refine_info, timings, warnings, rounds, mask)
 
 
