@@ -130,7 +130,10 @@ def cmu_table(quick: bool) -> tuple[str, list[str], list[list]] | None:
     fig = humanoid_figure(sk)
     height = float(np.ptp(np.concatenate([sk.rest_heads, sk.rest_tails])[:, 2]))
     meshes = [o for o in scene.objects if o.type == "MESH" and o.find_armature() == arm]
-    cam_obj = builders.add_camera(meshes[0] if meshes else arm, direction=(0.4, -1.0, 0.25))
+    # Drawn from the front-right of the character (the Adventurer faces +Y).
+    side = np.cross(fig.forward, fig.up)
+    view = fig.forward + 0.4 * side + 0.25 * fig.up
+    cam_obj = builders.add_camera(meshes[0] if meshes else arm, direction=tuple(view))
     from gesture_pose.blender.read_mesh import read_skinned_meshes
     mesh = read_skinned_meshes(arm, sk)
     frames = range(1, 41, 13) if quick else range(1, 41)
