@@ -4,8 +4,8 @@ Stick figures are made by projecting known poses through a camera (1.5 px noise 
 sample scene, none on the CMU poses; hands and feet left out), then reconstructed.
 
 1. **Sample scene** (the humanoid with a chair, stool, table and floor): sitting on the
-   chair, standing and leaning on the table, feet pinned to the floor where the eye ray
-   through each drawn ankle meets it.
+   chair, standing, leaning over the table and lying on the floor; feet (and, lying, the
+   pelvis) pinned to the floor where the eye ray through the drawn joint meets it.
 2. **CMU poses** retargeted onto the Adventurer (``../shared/eval-assets``, skipped when
    absent), no environment and no pins.
 
@@ -47,7 +47,10 @@ def _row(case: str, stats: list) -> list:
             float(np.median(t[:, 2]))]
 
 
-def _inputs(arm, sketch, cam_obj, env_coll: str | None, pin_ankles: bool):
+PINS = {"lie": ("pelvis", "ankle.L", "ankle.R")}
+
+
+def _inputs(arm, sketch, cam_obj, env_coll: str | None, pinned: tuple[str, ...]):
     """Read the scene like Pose Stick Figure does; returns the StickInput pieces."""
     import bpy
 
@@ -65,8 +68,8 @@ def _inputs(arm, sketch, cam_obj, env_coll: str | None, pin_ankles: bool):
         env = read_environment(environment_objects(ctx, arm, env_coll),
                                ctx.evaluated_depsgraph_get())
     pins = []
-    if pin_ankles and env is not None:
-        for j in ("ankle.L", "ankle.R"):
+    if env is not None:
+        for j in pinned:
             hit = pin_candidates(env, st.camera, st.stick.points[st.figure.joint(j)])[0]
             pins.append(EnvPinSpec(j, hit.point, hit.normal, "Floor"))
     base, _ = _base_pose(st.armature, st.figure)
@@ -81,7 +84,7 @@ def sample_table(quick: bool) -> tuple[str, list[str], list[list]]:
     from sample_scenes import stick_builders as sb
 
     rows = []
-    poses = ["sit"] if quick else ["sit", "stand", "lean"]
+    poses = ["sit"] if quick else ["sit", "stand", "lean", "lie"]
     seeds = [0] if quick else [0, 1, 2]
     for pose in poses:
         stats = []
@@ -93,7 +96,8 @@ def sample_table(quick: bool) -> tuple[str, list[str], list[list]]:
             truth_d = sb.stick_joints(arm)
             sb.pose_stick_humanoid(arm, "rest")
             st, mesh, env, pins, base = _inputs(arm, sc["sketch"], sc["camera"],
-                                                "Environment", True)
+                                                "Environment",
+                                                PINS.get(pose, ("ankle.L", "ankle.R")))
             truth = np.array([truth_d[n] for n in st.figure.joint_names])
             res = solve_stick(StickInput(
                 st.armature.skeleton, st.camera, stick=st.stick, environment=env,
@@ -103,7 +107,8 @@ def sample_table(quick: bool) -> tuple[str, list[str], list[list]]:
                          (res.timings["total"], res.timings["genetic"],
                           res.timings["refine"]))
         rows.append(_row(pose, stats))
-    return ("Stick figures on the sample scene (feet pinned, 1.5 px noise)", HEADERS, rows)
+    return ("Stick figures on the sample scene (pinned to the floor, 1.5 px noise)", HEADERS,
+            rows)
 
 
 def cmu_table(quick: bool) -> tuple[str, list[str], list[list]] | None:

@@ -38,6 +38,11 @@ STICK_POSES: dict[str, tuple[dict, dict]] = {
     "stand": ({"upper_arm.L": (X, -30.0), "forearm.L": (X, -45.0), "upper_arm.R": (Y, 25.0),
                "forearm.R": (X, -30.0), "thigh.L": (X, -15.0), "shin.L": (X, 16.0),
                "spine": (Y, 5.0)}, {"pelvis": (0.0, -0.9, 0.0)}),
+    "lie": ({"pelvis": (X, -90.0), "thigh.L": (X, -45.0), "shin.L": (X, 80.0),
+             "foot.L": (X, -35.0), "thigh.R": (X, -5.0), "shin.R": (X, 5.0),
+             "upper_arm.L": (Y, -30.0), "upper_arm.R": (X, -60.0), "forearm.R": (X, -40.0),
+             "head": (X, -15.0)},
+            {"pelvis": (0.4, -1.4, 0.11 - 0.93)}),
     "lean": ({"pelvis": (X, 25.0), "thigh.L": (X, -22.0), "thigh.R": (X, -25.0),
               "upper_arm.L": (X, -60.0), "forearm.L": (X, -10.0), "upper_arm.R": (X, -55.0),
               "forearm.R": (X, -15.0), "head": (X, -15.0)},
@@ -160,7 +165,7 @@ def build_stick_scene(pose: str = "sit", noise_px: float = 1.5, seed: int = 0,
     arm, mesh = builders.build_humanoid()
     env = add_furniture()
     builders.add_light()
-    target = (-0.6, -0.4, 0.8) if pose == "lean" else (0.0, -0.2, 0.8)
+    target = {"lean": (-0.6, -0.4, 0.8), "lie": (0.3, -1.3, 0.3)}.get(pose, (0.0, -0.2, 0.8))
     cam = builders.add_camera(target, direction=(0.45, -1.0, 0.35), distance=5.0,
                               resolution=(960, 720))
     pose_stick_humanoid(arm, pose)

@@ -162,10 +162,16 @@ def build_graph(strokes: Sequence[np.ndarray], snap_radius: float = SNAP_RADIUS)
     n_nodes, label = connected_components(coo_matrix(close), directed=False)
     nodes = np.stack([ends[label == k].mean(0) for k in range(n_nodes)])
     edges = label.reshape(-1, 2)
-    # T-junctions: a node close to the interior of a segment it does not end on.
+    # T-junctions: a node close to the interior of a segment of another piece of the
+    # drawing joins it there (joining pieces that are already connected would make a loop,
+    # e.g. where a drawn arm crosses a leg).
     changed = True
     while changed:
         changed = False
+        n = len(nodes)
+        _, piece = connected_components(
+            coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)),
+            directed=False)
         a, b = nodes[edges[:, 0]], nodes[edges[:, 1]]
         d = b - a
         L2 = np.maximum((d * d).sum(1), 1e-12)
@@ -173,11 +179,10 @@ def build_graph(strokes: Sequence[np.ndarray], snap_radius: float = SNAP_RADIUS)
         foot = a[None] + np.clip(t, 0, 1)[..., None] * d[None]
         gap = np.linalg.norm(nodes[:, None] - foot, axis=2)
         inner = (t > 0.05) & (t < 0.95) & (gap < snap_radius)
-        inner[edges[:, 0], np.arange(len(edges))] = False
-        inner[edges[:, 1], np.arange(len(edges))] = False
+        inner &= piece[:, None] != piece[edges[:, 0]][None, :]
         hits = np.argwhere(inner)
         if len(hits):
-            k, e = hits[0]
+            k, e = hits[np.argmin(gap[hits[:, 0], hits[:, 1]])]
             u, v = edges[e]
             edges = np.concatenate([np.delete(edges, e, 0), [[u, k], [k, v]]])
             changed = True

@@ -16,26 +16,50 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..rotations import exp_map, skew
 from ..skeleton import Pose, Skeleton
 from .figure import CharacterFigure
 
 N_ROOT_GENES = 6
 
 
+def _skew_fast(w: np.ndarray) -> np.ndarray:
+    """Cross-product matrices, ``(..., 3) -> (..., 3, 3)`` (assembled in place)."""
+    k = np.zeros(w.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2] = -w[..., 2], w[..., 1]
+    k[..., 1, 0], k[..., 1, 2] = w[..., 2], -w[..., 0]
+    k[..., 2, 0], k[..., 2, 1] = -w[..., 1], w[..., 0]
+    return k
+
+
+def _coefficients(phi: np.ndarray):
+    """``theta^2``, ``sin(t)/t``, ``(1 - cos t)/t^2``, ``(t - sin t)/t^3`` (series near 0)."""
+    t2 = np.sum(phi * phi, axis=-1)[..., None, None]
+    t = np.sqrt(t2)
+    small = t < 1e-4
+    safe = np.where(small, 1.0, t)
+    s = np.where(small, 1.0 - t2 / 6.0, np.sin(safe) / safe)
+    c = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    d = np.where(small, 1.0 / 6.0 - t2 / 120.0, (safe - np.sin(safe)) / safe**3)
+    return t2, s, c, d
+
+
+def fast_exp(phi: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula ``I + s K + c K^2`` with ``K^2 = phi phi^T - theta^2 I``."""
+    phi = np.asarray(phi, float)
+    t2, s, c, _ = _coefficients(phi)
+    outer = phi[..., :, None] * phi[..., None, :]
+    return (1.0 - c * t2) * np.eye(3) + s * _skew_fast(phi) + c * outer
+
+
 def right_jacobian(phi: np.ndarray) -> np.ndarray:
     """Right Jacobian of SO(3)'s exponential map, ``(..., 3) -> (..., 3, 3)``.
 
-    ``d exp(phi) = exp(phi) [J_r(phi) d phi]_x``.
+    ``d exp(phi) = exp(phi) [J_r(phi) d phi]_x``, ``J_r = I - c K + d K^2``.
     """
     phi = np.asarray(phi, float)
-    th = np.linalg.norm(phi, axis=-1)[..., None, None]
-    k = skew(phi)
-    small = th < 1e-6
-    safe = np.where(small, 1.0, th)
-    a = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
-    b = np.where(small, 1.0 / 6.0 - th**2 / 120.0, (safe - np.sin(safe)) / safe**3)
-    return np.eye(3) - a * k + b * (k @ k)
+    t2, _, c, d = _coefficients(phi)
+    outer = phi[..., :, None] * phi[..., None, :]
+    return (1.0 - d * t2) * np.eye(3) - c * _skew_fast(phi) + d * outer
 
 
 @dataclass(frozen=True)
@@ -146,9 +170,9 @@ class PoseModel:
         Q = np.broadcast_to(self.base.rotations, (P,) + self.base.rotations.shape).copy()
         g = np.where(self._e_valid, x[:, self._e_genes], 0.0)
         phi = np.einsum("eij,pej->pei", self._e_basis, g)
-        Q[:, self._e_bone] = Q[:, self._e_bone] @ exp_map(phi)
+        Q[:, self._e_bone] = Q[:, self._e_bone] @ fast_exp(phi)
         C = self._root_carry
-        G = exp_map(x[:, 3:6])
+        G = fast_exp(x[:, 3:6])
         r = self.figure.root_bone
         Q[:, r] = C.T @ G @ C @ self.base.rotations[r]
         return Q, phi

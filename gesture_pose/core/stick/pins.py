@@ -79,28 +79,36 @@ def pin_offsets(figure: CharacterFigure, skeleton: Skeleton, caps: Capsules,
                 weights: np.ndarray | None = None) -> np.ndarray:
     """Distance from each stick joint to the skin it rests on, world units, ``(J,)``.
 
-    For a joint whose bone has children below it along up (an ankle over its foot) it is
-    the rest height of the joint above the lowest skin point of those bones; otherwise the
-    capsule radius of the joint's bone.
+    For a joint starting a short end chain (an ankle over its foot, a wrist over its hand:
+    bones below it shorter than 15 % of the height in total) it is the rest height of the
+    joint above the lowest skin point of that chain; otherwise (a pelvis lying on the
+    floor, a knee on a bench, a head top) it is the capsule radius of the joint's bone or
+    its parent, whichever is larger.
     """
     up = figure.up
     radius = np.zeros(skeleton.n_bones)
     radius[caps.bones] = caps.radii
     out = np.zeros(figure.n_joints)
+    pts = np.concatenate([skeleton.rest_heads, skeleton.rest_tails])
+    height = float(np.ptp(pts @ up))
     for j in range(figure.n_joints):
         b = int(figure.joint_bones[j])
         p = (skeleton.rest_tails if figure.joint_at_tail[j] else skeleton.rest_heads)[b]
+        par = skeleton.parents[b]
+        r = max(radius[b], radius[par] if par >= 0 and not figure.joint_at_tail[j] else 0.0)
         below = skeleton.descendants(b) if not figure.joint_at_tail[j] else np.array([b])
+        if figure.joint_at_tail[j] or skeleton.lengths[below].sum() > 0.15 * height:
+            out[j] = r
+            continue
+        low = None
         if vertices is not None and weights is not None and len(vertices):
             own = np.isin(np.argmax(weights, 1), below)
             low = float(np.min(vertices[own] @ up)) if np.any(own) else None
-        else:
-            low = None
         if low is None:
             ends = np.concatenate([skeleton.rest_heads[below], skeleton.rest_tails[below]])
             rr = np.concatenate([radius[below], radius[below]])
             low = float(np.min(ends @ up - rr))
-        out[j] = max(float(p @ up) - low, radius[b])
+        out[j] = max(float(p @ up) - low, r)
     return out
 
 

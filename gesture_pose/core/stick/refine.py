@@ -81,11 +81,17 @@ def place_joints(objective: StickObjective, x0: np.ndarray, bounds: np.ndarray,
     fig = model.figure
     bones, at_tail = fig.joint_bones[joints], fig.joint_at_tail[joints]
 
+    cache: dict = {}
+
     def points(x):
-        heads, tails, Jh, Jt = model.jacobian(x)
-        p = np.where(at_tail[:, None], tails[bones], heads[bones])
-        J = np.where(at_tail[:, None, None], Jt[bones], Jh[bones])
-        return p, J
+        key = x.tobytes()
+        if key not in cache:
+            heads, tails, Jh, Jt = model.jacobian(x)
+            p = np.where(at_tail[:, None], tails[bones], heads[bones])
+            J = np.where(at_tail[:, None, None], Jt[bones], Jh[bones])
+            cache.clear()
+            cache[key] = (p, J)
+        return cache[key]
 
     def full(z):
         x = x0.copy()
@@ -100,7 +106,7 @@ def place_joints(objective: StickObjective, x0: np.ndarray, bounds: np.ndarray,
 
     lo, hi = bounds[genes, 0], bounds[genes, 1]
     z0 = np.clip(x0[genes], lo, hi)
-    res = least_squares(fun, z0, jac=jac, bounds=(lo, hi), xtol=1e-15, ftol=1e-15,
-                        gtol=1e-15, max_nfev=200)
+    res = least_squares(fun, z0, jac=jac, bounds=(lo, hi), xtol=1e-12, ftol=1e-14,
+                        gtol=1e-12, max_nfev=60)
     x = full(res.x)
     return x, np.linalg.norm(points(x)[0] - targets, axis=1)

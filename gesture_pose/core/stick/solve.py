@@ -82,7 +82,7 @@ class StickInput:
     use_contact: bool = False
     ga: GAConfig = field(default_factory=GAConfig)
     weights: Weights = field(default_factory=Weights)
-    refine_iterations: int = 150
+    refine_iterations: int = 80
 
 
 @dataclass(frozen=True)
@@ -343,7 +343,7 @@ def _solve(inp: StickInput) -> StickResult:
     joints = figure.joint_positions(heads, tails)
     picks = _distinct(joints, np.arange(len(joints)), inp.n_suggestions + 1, 0.04 * height)
     # Short refinement of every distinct candidate, then a long one of the best few.
-    first = [refine(objective, ga.population[i], bounds, max_iterations=30) for i in picks]
+    first = [refine(objective, ga.population[i], bounds, max_iterations=20) for i in picks]
     order = np.argsort([r.energy for r in first])
     heads, tails, _ = model.forward(np.array([first[i].x for i in order]))
     joints = figure.joint_positions(heads, tails)
