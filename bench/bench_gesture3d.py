@@ -129,8 +129,10 @@ def pose_table(quick: bool) -> tuple[str, list[str], list[list]]:
     from gesture_pose.core.gesture.trace import trace_contours
     from sample_scenes import builders
 
-    cases = [("humanoid", "raise_left_arm", "front"), ("humanoid", "step", "front"),
-             ("quadruped", "paw_forward", "side")]
+    cases = [("humanoid", "raise_left_arm", "front"), ("humanoid", "wave", "front"),
+             ("humanoid", "kick_right_leg", "front"), ("humanoid", "step", "front"),
+             ("humanoid", "demo", "front"), ("quadruped", "paw_forward", "side"),
+             ("quadruped", "tail_up", "side")]
     if quick:
         cases = cases[:1]
     rows = []
@@ -152,6 +154,10 @@ def pose_table(quick: bool) -> tuple[str, list[str], list[list]]:
             posed_joints(solving, bind.skeleton, truth.pose)), axis=1).mean())
         rows.append([kind, pose_name, view, solving.n_joints, rep.embedding.coverage, fit_px,
                      err, rate, rep.timings["fit"], rep.timings["solve3d"], rep.seconds])
+    rows.append(["mean", "", "", "", float(np.mean([r[4] for r in rows])),
+                 float(np.mean([r[5] for r in rows])), float(np.mean([r[6] for r in rows])),
+                 float(np.nanmean([r[7] for r in rows])), float(np.mean([r[8] for r in rows])),
+                 float(np.mean([r[9] for r in rows])), float(np.mean([r[10] for r in rows]))])
     return ("Gesture3D whole Pose on traced contours (2D fit + 3D solve)",
             ["character", "pose", "view", "joints", "coverage", "2D joint error px",
              "3D error % height", "depth order ok", "fit s", "3D s", "Pose s"], rows)
