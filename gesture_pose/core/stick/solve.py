@@ -341,7 +341,7 @@ def _solve(inp: StickInput) -> StickResult:
     t0 = time.perf_counter()
     heads, tails, _ = model.forward(ga.population[:256])
     joints = figure.joint_positions(heads, tails)
-    picks = _distinct(joints, np.arange(len(joints)), inp.n_suggestions + 1, 0.04 * height)
+    picks = _distinct(joints, np.arange(len(joints)), inp.n_suggestions + 2, 0.08 * height)
     # Short refinement of every distinct candidate, then a long one of the best few.
     first = [refine(objective, ga.population[i], bounds, max_iterations=20) for i in picks]
     order = np.argsort([r.energy for r in first])
