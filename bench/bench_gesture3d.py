@@ -320,7 +320,6 @@ def pictures(out_dir: Path, pose_name: str = "demo") -> list[Path]:
     of the known pose, of the lifting of its exact embedding, and of the whole Pose.
     """
     import bpy
-    from mathutils import Vector
 
     import gesture_pose
     from gesture_pose.blender.operators.pose_drawing import pose_from_drawing
@@ -347,8 +346,9 @@ def pictures(out_dir: Path, pose_name: str = "demo") -> list[Path]:
     bind, truth = _truth(arm, "humanoid", pose_name)
     meshes = read_skinned_meshes(arm, truth.skeleton)
     traced = trace_contours(meshes.deformed_vertices, meshes.triangles, cam)
-    toward = -Vector(cam.forward) * 0.5
-    strokes = [p + np.array(toward) for p in traced.world(cam)]
+    # Half a unit in front of the contours along their view rays: drawn over the character.
+    strokes = [cam.unproject_at_depth(p, d - 0.5)
+               for p, d in zip(traced.pixels, traced.depths, strict=True)]
 
     def shot(camera_obj, name: str) -> np.ndarray:
         scene.camera = camera_obj
