@@ -193,3 +193,22 @@ def test_chain_along_view_axis_is_reported(registered) -> None:
     with pytest.raises(RuntimeError, match="along the view axis"):
         pose_stroke(armature=arm.name, sketch=gp.name, end_bone="upper_arm.L",
                     start_bone="upper_arm.L")
+
+
+@pytest.mark.parametrize("pins", [("hand.L",), ("hand.L", "fingers.L")])
+def test_pinned_bones_keep_their_world_position(scene, pins) -> None:
+    arm, _, cam, gp = scene
+    collection = arm.data.collections.new("Pinned")
+    for name in pins:
+        collection.assign(arm.data.bones[name])
+    before = builders.joint_positions(arm)
+    builders.add_strokes(gp, [builders.chain_stroke(
+        arm, cam, ["upper_arm.L", "forearm.L"], builders.HUMANOID_POSES["raise_left_arm"])])
+    assert pose_stroke(armature=arm.name, sketch=gp.name) == {"FINISHED"}
+    bpy.context.view_layer.update()
+    after = builders.joint_positions(arm)
+    for name in pins:
+        np.testing.assert_allclose(after[name][0], before[name][0], atol=2e-6)
+        np.testing.assert_allclose(after[name][1], before[name][1], atol=2e-6)
+    # The arm did move: the pins were restored, not the stroke ignored.
+    assert np.linalg.norm(after["forearm.L"][0] - before["forearm.L"][0]) > 0.02

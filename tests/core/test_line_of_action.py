@@ -81,7 +81,9 @@ def test_lengths_and_depths_kept_and_joints_on_stroke(ortho: bool) -> None:
     pose = Pose(exp_map(rng.normal(size=(3, 3)) * 0.4), np.zeros((3, 3)))
     state = sk.forward(pose)
     p0 = cam.project(state.heads[:1])[0]
-    stroke = Stroke(polyline(p0, p0 + [130, 10], p0 + [150, 160], p0 + [60, 260]))
+    # A smooth stroke (no drawn corner): joints land where the stroke crosses their circles.
+    theta = np.linspace(0.0, 0.9 * np.pi, 500)[:, None]
+    stroke = Stroke(p0 + 150.0 * np.hstack([1.0 - np.cos(theta), np.sin(theta)]))
     res = pose_from_stroke(sk, pose, cam, stroke)
     new = sk.forward(res.pose)
     np.testing.assert_allclose(np.linalg.norm(new.tails - new.heads, axis=1), sk.lengths,
@@ -241,7 +243,7 @@ def test_feature_points_snap_to_zigzag_corners() -> None:
     assert feature_param(sampled, 80.0, 100 / 3, 0.02) == pytest.approx(100.0, abs=1.0)
     assert feature_param(sampled, 215.0, 100 / 3, 0.02) == pytest.approx(200.0, abs=1.0)
     # On the straight middle of a segment nothing counts as a feature.
-    assert feature_param(sampled, 150.0, 100 / 3, 0.02) == 150.0
+    assert feature_param(sampled, 150.0, 100 / 3, 0.02) is None
 
 
 def test_features_beat_uniform_baseline_on_a_curved_stroke() -> None:
@@ -257,6 +259,25 @@ def test_features_beat_uniform_baseline_on_a_curved_stroke() -> None:
                             StrokeOptions(feature_extraction=False))
     assert feat.mean_distance < 1e-3
     assert base.mean_distance > 0.5
+
+
+def test_drawn_corner_decides_the_bone_direction() -> None:
+    # The elbow is drawn at 0.5 of a 0.6 m upper arm: Eq. 2 finds the corner, and Eq. 4
+    # points the upper arm at it (the joint cannot reach it exactly), instead of landing
+    # the joint where the stroke's second leg crosses its circle.
+    sk = chain_skeleton(np.array([[0, 0, 0], [0, 0, 0.6], [0, 0, 1.0]], float))
+    cam = front_camera(ortho=True)
+    p0 = cam.project(sk.rest_heads[:1])[0]
+    ppu = cam.pixels_per_unit(6.0)
+    corner = p0 + [0.5 * ppu, 0.0]
+    stroke = Stroke(polyline(p0, corner, corner + [0.0, 0.6 * ppu]))
+    res = pose_from_stroke(sk, Pose.identity(2), cam, stroke)
+    upper = sk.forward(res.pose).tails[0] - sk.rest_heads[0]
+    assert np.degrees(np.arccos(upper[0] / np.linalg.norm(upper))) < 1.0
+    no_features = pose_from_stroke(sk, Pose.identity(2), cam, stroke,
+                                   StrokeOptions(feature_min_curvature=1e9))
+    upper = sk.forward(no_features.pose).tails[0] - sk.rest_heads[0]
+    assert np.degrees(np.arccos(upper[0] / np.linalg.norm(upper))) > 20.0
 
 
 def test_bent_limb_elbow_lands_on_the_drawn_corner() -> None:
@@ -284,9 +305,13 @@ def test_pinned_bone_keeps_world_position() -> None:
     free = pose_from_stroke(sk, Pose.identity(4), cam, stroke)
     res = pose_from_stroke(sk, Pose.identity(4), cam, stroke, pinned=pinned)
     before, after = sk.forward(Pose.identity(4)), sk.forward(res.pose)
-    assert res.pins.pinned == (3,)
-    np.testing.assert_allclose(after.heads[3], before.heads[3], atol=1e-6)
-    np.testing.assert_allclose(after.tails[3], before.tails[3], atol=1e-6)
+    assert res.pins.pinned == (3,) and res.pins.held
+    assert res.warnings == (f"The posed joints are {res.mean_distance:.0f} px from the stroke "
+                            "on average: the pinned bones (b3) hold the chain back.",)
+    np.testing.assert_allclose(after.heads[3], before.heads[3], atol=1e-9)
+    np.testing.assert_allclose(after.tails[3], before.tails[3], atol=1e-9)
+    np.testing.assert_allclose(after.frames[3], before.frames[3], atol=1e-9)
+    assert res.pins.drawn_error > 0.01  # the pin pulled the chain off the drawn pose
     np.testing.assert_allclose(np.linalg.norm(after.tails - after.heads, axis=1), sk.lengths,
                                atol=1e-9)
     # Without the pin the stroke would have moved it far.

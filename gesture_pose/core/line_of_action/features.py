@@ -59,7 +59,7 @@ class SampledStroke:
 
 def feature_param(
     sampled: SampledStroke, guess: float, half_window: float, min_curvature: float
-) -> float:
+) -> float | None:
     """Eq. 2: the highest-curvature sample near ``guess``.
 
     Args:
@@ -71,7 +71,8 @@ def feature_param(
             twice the window's mean, so straight strokes keep the arc-length guess.
 
     Returns:
-        Arc length of the feature point, or ``guess`` when the window holds none.
+        Arc length of the feature point, or None when the window holds none (the caller
+        keeps the arc-length guess).
     """
     lo, hi = guess - half_window, guess + half_window
     if hi >= sampled.length or lo <= 0.0:
@@ -81,10 +82,10 @@ def feature_param(
     idx = sampled.window(lo, hi)
     kappa = sampled.curvature[idx]
     if kappa.size < 3:
-        return guess
+        return None
     best = int(np.argmax(kappa))
     if kappa[best] < max(min_curvature, 2.0 * float(kappa.mean())):
-        return guess
+        return None
     return float(sampled.params[idx][best])
 
 

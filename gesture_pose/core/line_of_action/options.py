@@ -51,6 +51,11 @@ class StrokeOptions:
             joint's projection.
         feature_extraction: Use the curvature features of Eqs. 2-3; False gives the uniform
             arc-length baseline (Guay et al. 2013 style).
+        stroke_crossing: Where Eq. 2 finds no drawn corner, place the joint where the rays
+            through the stroke cross its circle (nearest the arc-length guess), so joints
+            land on smooth strokes exactly; a refinement beyond the paper, which places
+            the joint at the circle point nearest the guess's ray (position tracking
+            with feature extraction only).
         sample_step: Stroke sampling step in pixels ("one sample per pixel").
         feature_min_curvature: Smallest |curvature| (1/pixels) that counts as a feature.
         view_axis_tolerance: Bones whose depth-keeping circle is smaller than this fraction
@@ -65,10 +70,11 @@ class StrokeOptions:
     end_bone: str | None = None
     pick_radius: float = 40.0
     feature_extraction: bool = True
+    stroke_crossing: bool = True
     sample_step: float = 1.0
     feature_min_curvature: float = 0.02
     view_axis_tolerance: float = 0.03
-    pin_iterations: int = 30
+    pin_iterations: int = 60
 
     def __post_init__(self) -> None:
         """Coerce enum strings and check ranges."""

@@ -178,6 +178,28 @@ def aimed_rotation(cs: ChainState, bone: int, seg_end: np.ndarray,
 
 
 @dataclass(frozen=True)
+class Trial:
+    """Where one bone's segment would go.
+
+    Attributes:
+        rotation: New local rotation, or None when the bone is skipped (view axis).
+        angle: Rotation magnitude, radians.
+        param: Arc length of the joint's point on the stroke, pixels.
+        target: Target pixel, shape ``(2,)``.
+        projected: Projected segment length, pixels.
+        depth_kept: False when the joint could not keep its depth (its parent moved too far
+            in depth) and kept its current one instead.
+    """
+
+    rotation: np.ndarray | None
+    angle: float
+    param: float
+    target: np.ndarray
+    projected: float
+    depth_kept: bool = True
+
+
+@dataclass(frozen=True)
 class PartOutcome:
     """What posing one chain did.
 
@@ -187,6 +209,8 @@ class PartOutcome:
         landed: Projection of each posed segment end, shape ``(k, 2)``.
         skipped: Bones left alone because they lie along the view axis.
         angles: Rotation magnitude applied to each bone, radians, shape ``(k,)``.
+        ends: For each bone, the child whose head ends its segment, or -1 for its tail.
+        depth_moved: Bones whose end joint could not keep its depth.
     """
 
     bones: tuple[int, ...]
@@ -194,6 +218,8 @@ class PartOutcome:
     landed: np.ndarray
     skipped: tuple[int, ...]
     angles: np.ndarray
+    ends: tuple[int, ...] = ()
+    depth_moved: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -224,7 +250,8 @@ class _Walker:
         self.shape = options.tracking is Tracking.SHAPE
         self.head_depth = view.depth(cs.heads)
         self.tail_depth = view.depth(cs.tails)
-        self.crossing = options.feature_extraction and not self.shape
+        self.crossing = (options.feature_extraction and options.stroke_crossing
+                         and not self.shape)
         if self.crossing:
             self.rays = StrokeRays.through(view, sampled.params, sampled.points)
         right = np.cross(view.forward, [0.0, 0.0, 1.0])
@@ -241,47 +268,45 @@ class _Walker:
         return math.hypot(x1 - x0, y1 - y0)
 
     def target(self, s_prev: float, lp: float,
-               landed_prev: np.ndarray) -> tuple[float, np.ndarray]:
-        """Feature arc length (Eq. 2) and target pixel of a segment projecting to ``lp`` px."""
+               landed_prev: np.ndarray) -> tuple[float, np.ndarray, bool]:
+        """Eq. 2 for a segment projecting to ``lp`` px: arc length, target pixel, feature?"""
         guess = min(s_prev + lp, self.sampled.length)
-        s = guess
+        s, feature = guess, False
         if self.opt.feature_extraction:
-            s = feature_param(self.sampled, guess, lp / 3.0, self.opt.feature_min_curvature)
+            found = feature_param(self.sampled, guess, lp / 3.0, self.opt.feature_min_curvature)
+            if found is not None:
+                s, feature = found, True
         if self.shape:
-            return s, landed_prev + self.sampled.at(s) - self.sampled.at(s_prev)
-        return s, self.sampled.at(s)
+            return s, landed_prev + self.sampled.at(s) - self.sampled.at(s_prev), feature
+        return s, self.sampled.at(s), feature
 
     def try_bone(self, bone: int, seg_end: np.ndarray, end_child: int, s_prev: float,
-                 landed_prev: np.ndarray) -> tuple[np.ndarray | None, float, float, np.ndarray,
-                                                   float]:
-        """Placement of one bone's segment.
+                 landed_prev: np.ndarray) -> Trial:
+        """Placement of one bone's segment (Eqs. 2 and 4).
 
         ``end_child`` is the child whose head ends the segment, or -1 for the bone's tail.
-
-        Returns:
-            ``(rotation or None if skipped, angle, feature arc length, target pixel,
-            projected segment length in pixels)``.
         """
         head = self.cs.heads[bone]
         dx, dy, dz = (seg_end - head).tolist()
         length = math.sqrt(dx * dx + dy * dy + dz * dz)
         if length < 1e-12:
-            return None, 0.0, s_prev, landed_prev, 0.0
+            return Trial(None, 0.0, s_prev, landed_prev, 0.0)
         original = self.tail_depth[bone] if end_child < 0 else self.head_depth[end_child]
         depth = joint_plane_depth(self.view, head, seg_end, length, original, self.plane,
                                   self.opt.view_axis_tolerance)
+        kept = self.plane or depth == original
         lp = self.projected_length(head, seg_end)
-        s, tgt = self.target(s_prev, lp, landed_prev)
-        if self.crossing:
+        s, tgt, feature = self.target(s_prev, lp, landed_prev)
+        if self.crossing and not feature:
             root = stroke_circle_crossing(self.view, self.rays, head, length, depth, s_prev, s)
             if root is not None and abs(root - s) <= max(lp, 2.0 * self.sampled.step):
                 s, tgt = root, self.sampled.at(root)
         placed = place_joint(self.view, head, seg_end, length, tgt, depth,
                              self.opt.view_axis_tolerance)
         if placed.skipped:
-            return None, 0.0, s, tgt, lp
+            return Trial(None, 0.0, s, tgt, lp, kept)
         rot, angle = aimed_rotation(self.cs, bone, seg_end, placed.position)
-        return rot, angle, s, tgt, lp
+        return Trial(rot, angle, s, tgt, lp, kept)
 
 
 def _segment_ends(skeleton: Skeleton, cs: ChainState, bone: int,
@@ -321,6 +346,8 @@ def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: Cha
     candidates = np.asarray(fixed[:1] if fixed else spec.start_candidates, dtype=int)
     s_prev, landed_prev = 0.0, sampled.at(0.0)
     bones, targets, landed, skipped, angles = [], [], [], [], []
+    seg_ends: list[int] = []
+    depth_moved: list[int] = []
     while candidates.size:
         for c in candidates.tolist():
             cs.refresh(c)  # their parent is final now
@@ -333,35 +360,41 @@ def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: Cha
         for k in kids.tolist():
             cs.refresh_head(k)  # where the segment ends before the bone turns
         ends = _segment_ends(skeleton, cs, bone, kids)
-        results = [walker.try_bone(bone, end, int(m[0]) if m.size else -1, s_prev, landed_prev)
-                   for end, m in ends]
-        best = int(np.argmin([r[1] if r[0] is not None else np.inf for r in results]))
-        if results[best][0] is None:
+        trials = [walker.try_bone(bone, end, int(m[0]) if m.size else -1, s_prev, landed_prev)
+                  for end, m in ends]
+        best = int(np.argmin([t.angle if t.rotation is not None else np.inf for t in trials]))
+        if trials[best].rotation is None:
             best = 0
-        rot, angle, s, tgt, lp = results[best]
+        trial = trials[best]
         end, members = ends[best]
         if spec.stop_when_exhausted and fixed is None and pos > 0:
-            if sampled.length - s_prev < 0.5 * lp:
+            if sampled.length - s_prev < 0.5 * trial.projected:
                 break
         offset_local = cs.frames[bone].T @ (end - cs.heads[bone])
-        if rot is None:
+        if trial.rotation is None:
             skipped.append(bone)
         else:
-            cs.set_rotation(bone, rot)
+            cs.set_rotation(bone, trial.rotation)
+        if not trial.depth_kept:
+            depth_moved.append(bone)
         new_end = cs.heads[bone] + cs.frames[bone] @ offset_local
         land = view.project(new_end)
+        s = trial.param
         if options.tracking is Tracking.POSITION and options.feature_extraction:
-            s = renormalize_param(sampled, land, s, max(lp / 3.0, 2.0 * sampled.step))
+            s = renormalize_param(sampled, land, s, max(trial.projected / 3.0,
+                                                        2.0 * sampled.step))
         bones.append(bone)
-        targets.append(tgt)
+        seg_ends.append(int(members[0]) if members.size else -1)
+        targets.append(trial.target)
         landed.append(land)
-        angles.append(angle if rot is not None else 0.0)
+        angles.append(trial.angle if trial.rotation is not None else 0.0)
         s_prev, landed_prev = s, land
         candidates = members
         if fixed is not None and pos + 1 >= len(fixed):
             break
     return PartOutcome(tuple(bones), np.array(targets).reshape(-1, 2),
-                       np.array(landed).reshape(-1, 2), tuple(skipped), np.array(angles))
+                       np.array(landed).reshape(-1, 2), tuple(skipped), np.array(angles),
+                       tuple(seg_ends), tuple(depth_moved))
 
 
 def _choose(skeleton: Skeleton, walker: _Walker, candidates: np.ndarray, s_prev: float,
@@ -372,6 +405,6 @@ def _choose(skeleton: Skeleton, walker: _Walker, candidates: np.ndarray, s_prev:
     cs = walker.cs
     angles = []
     for c in candidates:
-        rot, angle, _, _, _ = walker.try_bone(int(c), cs.tails[c], -1, s_prev, landed_prev)
-        angles.append(angle if rot is not None else np.inf)
+        trial = walker.try_bone(int(c), cs.tails[c], -1, s_prev, landed_prev)
+        angles.append(trial.angle if trial.rotation is not None else np.inf)
     return int(candidates[int(np.argmin(angles))])

@@ -162,19 +162,56 @@ def pose_from_stroke(skeleton: Skeleton, pose: Pose, camera: Camera, stroke: Str
         new_pose, pin_report = restore_pins(skeleton, pose, new_pose, np.asarray(chain, int),
                                             np.asarray(pinned, bool), options.pin_iterations)
     t3 = time.perf_counter()
-    targets = np.concatenate([o.targets for o in outcomes])
-    landed = np.concatenate([o.landed for o in outcomes])
+    landed = _landed(skeleton, new_pose, view, outcomes)
     mean_distance = float(np.mean(distance_to_polyline(landed, stroke.points))) if len(
         landed) else 0.0
-    diff = np.linalg.norm((new_pose.rotations - pose.rotations).reshape(len(pose.rotations), -1),
-                          axis=1)
-    warnings = ()
-    if skipped:
-        warnings = (f"Skipped bones along the view axis: {', '.join(skipped)}.",)
+    diff = np.abs(new_pose.rotations - pose.rotations).max(axis=(1, 2))
+    warnings = _warnings(skeleton, outcomes, pin_report, mean_distance)
     return StrokePoseResult(
         pose=new_pose, changed=np.flatnonzero(diff > 1e-12), chain=tuple(
-            skeleton.names[b] for b in chain), plan=plan.kind, targets=targets, landed=landed,
+            skeleton.names[b] for b in chain), plan=plan.kind,
+        targets=np.concatenate([o.targets for o in outcomes]), landed=landed,
         skipped=skipped, mean_distance=mean_distance, pins=pin_report,
-        timings={"match": t1 - t0, "align": t2 - t1, "pins": t3 - t2, "total": t3 - t0},
+        timings={"match": t1 - t0, "align": t2 - t1, "pins": t3 - t2,
+                 "total": time.perf_counter() - t0},
         warnings=warnings,
     )
+
+
+def _landed(skeleton: Skeleton, pose: Pose, view: ViewOps,
+            outcomes: list[PartOutcome]) -> np.ndarray:
+    """Projections of every posed segment end in the final pose, shape ``(k, 2)``."""
+    state = skeleton.forward(pose)
+    ends = [state.tails[b] if c < 0 else state.heads[c]
+            for o in outcomes for b, c in zip(o.bones, o.ends, strict=True)]
+    return view.project(np.array(ends).reshape(-1, 3))
+
+
+FAR_FROM_STROKE_PX = 10.0
+
+
+def _warnings(skeleton: Skeleton, outcomes: list[PartOutcome], pins: PinReport,
+              mean_distance: float) -> tuple[str, ...]:
+    """Messages about what the solve could not do exactly."""
+    names = skeleton.names
+    out = []
+    skipped = [names[b] for o in outcomes for b in o.skipped]
+    if skipped:
+        out.append(f"Skipped bones along the view axis: {', '.join(skipped)}.")
+    moved = [names[b] for o in outcomes for b in o.depth_moved]
+    if moved:
+        out.append(f"The joints below {', '.join(moved)} could not keep their depth (their "
+                   "parent moved too far towards or away from the view); they kept their "
+                   "current depth instead.")
+    if pins.pinned and not pins.held:
+        held = ", ".join(names[b] for b in pins.pinned)
+        out.append(f"Pinned bones ({held}) could not be held exactly: off by "
+                   f"{pins.residual:.3g} units. Draw a stroke they can follow, or unpin them.")
+    if mean_distance > FAR_FROM_STROKE_PX:
+        why = ("the pinned bones (" + ", ".join(names[b] for b in pins.pinned)
+               + ") hold the chain back" if pins.pinned else "the bones cannot follow it "
+               "(they keep their lengths and depth). Try View Plane, or check the start and "
+               "end bones")
+        out.append(f"The posed joints are {mean_distance:.0f} px from the stroke on average: "
+                   f"{why}.")
+    return tuple(out)
