@@ -142,3 +142,33 @@ def test_solve_starts_from_bind_pose_not_previous_result():
     first = solve_pose3d(sk, emb, cam)
     again = solve_pose3d(sk, emb, cam, first.pose)
     np.testing.assert_allclose(again.joints3d, first.joints3d, atol=1e-9)
+
+
+def test_a_failing_qp_keeps_the_last_valid_pose(monkeypatch):
+    from gesture_pose.core.exceptions import SolverError
+    from gesture_pose.core.gesture.depth import solve3d
+
+    sk = tree_skeleton()
+    cam = front_camera(ortho=True)
+    truth = Pose(exp_map(np.random.default_rng(2).normal(scale=0.5, size=(6, 3))),
+                 np.zeros((6, 3)))
+    emb = project_embedding(sk, solving_skeleton(sk), truth, cam)
+    real, calls = solve3d.solve_qp, []
+
+    def flaky(problem, **kw):
+        calls.append(1)
+        if len(calls) >= limit:
+            raise SolverError("OSQP gave up", {"status": "maximum iterations reached"})
+        return real(problem, **kw)
+
+    monkeypatch.setattr(solve3d, "solve_qp", flaky)
+    limit = 2
+    res = solve_pose3d(sk, emb, cam)
+    assert res.iterations == 2 and not res.converged
+    assert any("stopped at iteration 2" in w for w in res.warnings)
+    state = sk.forward(res.pose)
+    np.testing.assert_allclose(np.linalg.norm(state.tails - state.heads, axis=1), sk.lengths)
+    calls.clear()
+    limit = 1
+    with pytest.raises(SolverError):
+        solve_pose3d(sk, emb, cam)

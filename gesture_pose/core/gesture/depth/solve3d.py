@@ -378,17 +378,24 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
                            alpha=opts.alpha, kappa=setup.kappa, soften=soften,
                            rho=opts.soft_penalty)
         try:
-            sol = solve_qp(problem)
+            try:
+                sol = solve_qp(problem)
+            except SolverError as err:
+                if soften or "infeasible" not in err.details.get("status", ""):
+                    raise
+                soften = True
+                warnings.append("The drawing's depth cues contradict each other; the "
+                                "constraints were softened.")
+                problem = build_qp(setup.terms, constraints, dof, X.ravel(), G,
+                                   alpha=opts.alpha, kappa=setup.kappa, soften=True,
+                                   rho=opts.soft_penalty)
+                sol = solve_qp(problem)
         except SolverError as err:
-            if soften or "infeasible" not in err.details.get("status", ""):
+            if it == 1:
                 raise
-            soften = True
-            warnings.append("The drawing's depth cues contradict each other; the "
-                            "constraints were softened.")
-            problem = build_qp(setup.terms, constraints, dof, X.ravel(), G,
-                               alpha=opts.alpha, kappa=setup.kappa, soften=True,
-                               rho=opts.soft_penalty)
-            sol = solve_qp(problem)
+            # Every iterate is a valid pose (exact lengths): keep the last one.
+            warnings.append(f"The 3D solve stopped at iteration {it}: {err}")
+            break
         qp_time += sol.solve_time
         active = sol.active
         if sol.status != "solved" and not any(w.startswith("Some QP") for w in warnings):
