@@ -219,6 +219,13 @@ def test_flip_depth_mirrors_the_limb_and_keys_it(registered):
     np.testing.assert_allclose(after.pose.rotations[others], before.pose.rotations[others])
     channel = rotation_channel(after.rotation_modes[i])
     assert keyed_frames(arm, "forearm.L", channel) == [FRAME]
+    # Flipping the active bone's limb again restores the original pose.
+    arm.data.bones.active = arm.data.bones["forearm.L"]
+    with bpy.context.temp_override(active_object=arm, object=arm):
+        assert bpy.ops.gesture_pose.flip_depth(armature=arm.name) == {"FINISHED"}
+    back = read_armature(arm)
+    sback = back.skeleton.forward(back.pose)
+    np.testing.assert_allclose(sback.tails, sb.tails, atol=1e-5)
 
 
 def test_pose_is_the_first_button_of_the_tab(registered):
