@@ -83,9 +83,13 @@ def tube_mesh(skel: Skeleton, vertices: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def stick(skel: Skeleton, chains: list[list[int]]) -> tuple[np.ndarray, np.ndarray, CurveLayout]:
-    """Raw stick-figure points (8 per bone), weights and layout, one curve per chain."""
+    """Raw stick-figure points (8 per bone), weights and layout, one curve per chain.
+
+    The first chain (upwards from the root's tail) starts with the root bone, so every
+    bone carries abstraction points.
+    """
     pts, wts, offsets = [], [], [0]
-    for chain in chains:
+    for chain in [[0] + list(chains[0])] + list(chains[1:]):
         for k, b in enumerate(chain):
             s = np.linspace(0, 1, 9)[:-1] if k < len(chain) - 1 else np.linspace(0, 1, 9)
             pts.append(skel.rest_heads[b] + s[:, None] * (skel.rest_tails[b]

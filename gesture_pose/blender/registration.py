@@ -18,7 +18,7 @@ MODULES: tuple[str, ...] = (
     "panel",
     "operators.pose_drawing",
     "operators.pose_stroke",
-    "operators.abstraction",
+    "operators.abstraction", "operators.abstraction_ui",
     "operators.fit_drawing",
     "operators.stick",
 )

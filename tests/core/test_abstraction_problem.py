@@ -13,7 +13,7 @@ from gesture_pose.core.abstraction.problem import (
     rest_from_posed,
 )
 from gesture_pose.core.abstraction.rig import lbs_weighted_rest, pose_bones, skin
-from gesture_pose.core.abstraction.solver import solve_abstraction
+from gesture_pose.core.abstraction.solver import SolveOptions, solve_abstraction
 from gesture_pose.core.stroke import Stroke
 from tests.core.fixtures import front_camera, tree_skeleton
 from tests.core.test_abstraction_solver import bone_error_deg, in_plane_pose, tube_mesh
@@ -64,15 +64,18 @@ def test_lbs_and_black_box_problems_reach_the_same_pose() -> None:
     deformed = skin(pose_bones(skel, start), y_mesh)
     lbs = build_lbs_problem(skel, start, space, cam, strokes, now, weights_pts, layout, verts,
                             deformed, weights, k=80, budget=60)
-    res_lbs = solve_abstraction(lbs)
+    # The root carries no curve but must turn: let the bones above the drawn ones move.
+    options = SolveOptions(moved_bones="DRAWN_AND_PARENTS")
+    res_lbs = solve_abstraction(lbs, options)
 
     def raw(pose):
         posed = pose_bones(skel, pose)
         return skin(posed, y), skin(posed, y_mesh)
 
     box = build_blackbox_problem(skel.names, start, space, cam, strokes, raw, layout, deformed,
-                                 weights, k=80, budget=60, step=1e-6)
-    res_box = solve_abstraction(box)
+                                 weights, k=80, budget=60, step=1e-6, skeleton=skel,
+                                 curve_weights=weights_pts)
+    res_box = solve_abstraction(box, options)
     assert res_lbs.initial_residual_px > 10
     assert res_lbs.residual_px < 0.5 and res_box.residual_px < 0.5
     assert bone_error_deg(skel, res_lbs.pose, res_box.pose) < 1.0

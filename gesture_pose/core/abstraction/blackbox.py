@@ -9,7 +9,7 @@ differences with one evaluation per free parameter, so it is slower than :class:
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -37,6 +37,10 @@ class FiniteDifferenceRig:
     evaluator: Evaluator
     step: float = DEFAULT_STEP
     counter: list = field(default_factory=lambda: [0])
+
+    def with_space(self, space: ParameterSpace) -> FiniteDifferenceRig:
+        """The same rig (sharing the evaluation counter) with other free parameters."""
+        return replace(self, space=space)
 
     def evaluate(self, pose: RigPose) -> tuple[np.ndarray, np.ndarray]:
         """Abstraction points ``(m, 3)`` and representative vertices ``(k, 3)``."""

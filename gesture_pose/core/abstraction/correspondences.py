@@ -110,9 +110,33 @@ def _symmetric_distance(curve: np.ndarray, stroke_pts: np.ndarray) -> float:
     return 0.5 * total
 
 
+def assignment_cost(curve: np.ndarray, stroke_pts: np.ndarray) -> float:
+    """Cost of matching a stroke to a curve: shape distance plus end-point distance, pixels.
+
+    The mean symmetric closest-point distance alone prefers a long curve that happens to
+    pass near a redrawn limb (a torso outline near a raised arm); a limb is redrawn from
+    where it is attached, so the mean distance between the two curves' end points (in
+    either drawing direction) is added.
+
+    Args:
+        curve: Projected curve, ``(m, 2)`` pixels.
+        stroke_pts: Stroke samples, ``(s, 2)`` pixels.
+    """
+    ends = (curve[0], curve[-1])
+    same = 0.5 * (np.linalg.norm(ends[0] - stroke_pts[0]) + np.linalg.norm(ends[1]
+                                                                           - stroke_pts[-1]))
+    flipped = 0.5 * (np.linalg.norm(ends[0] - stroke_pts[-1]) + np.linalg.norm(
+        ends[1] - stroke_pts[0]))
+    return _symmetric_distance(curve, stroke_pts) + float(min(same, flipped))
+
+
 def assign_strokes(curves_2d: list[np.ndarray], strokes: list[Stroke],
                    mode: str = BY_PROXIMITY) -> tuple[tuple[int, int], ...]:
     """Assign strokes to abstraction curves.
+
+    With ``"PROXIMITY"`` the assignment minimizes the summed :func:`assignment_cost` (an
+    optimal assignment, so two strokes never share a curve). Strokes far from the
+    character are refused before (see :func:`.checks.check_strokes_near`).
 
     Args:
         curves_2d: Projected curves, each ``(m_i, 2)`` pixels.
@@ -136,7 +160,7 @@ def assign_strokes(curves_2d: list[np.ndarray], strokes: list[Stroke],
     for j, stroke in enumerate(strokes):
         pts = polyline_at(stroke, np.linspace(0.0, stroke.length, 32))
         for i, curve in enumerate(curves_2d):
-            cost[i, j] = _symmetric_distance(curve, pts)
+            cost[i, j] = assignment_cost(curve, pts)
     rows, cols = linear_sum_assignment(cost)
     return tuple(sorted((int(r), int(c)) for r, c in zip(rows, cols, strict=True)))
 

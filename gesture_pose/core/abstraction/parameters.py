@@ -110,6 +110,28 @@ class ParameterSpace:
         start = 3 * self.rotation_bones.size
         return np.arange(start, start + self.scale_bones.size)
 
+    @property
+    def column_bones(self) -> np.ndarray:
+        """The bone of every column of ``p``, shape ``(P,)``."""
+        return np.concatenate([np.repeat(self.rotation_bones, 3), self.scale_bones,
+                               np.repeat(self.translation_bones, 3)]).astype(int)
+
+    def restrict(self, bones: np.ndarray) -> tuple[ParameterSpace, np.ndarray]:
+        """The parameters of ``bones`` only.
+
+        Args:
+            bones: Bone indices to keep free, ``(b,)``.
+
+        Returns:
+            ``(space, columns)``: the smaller space and, for each of its columns, the
+            column of ``self`` it comes from (same order), ``(P',)``.
+        """
+        keep = np.zeros(self.n_bones, dtype=bool)
+        keep[np.asarray(bones, dtype=int)] = True
+        rb, sb, tb = self.rotation_bones, self.scale_bones, self.translation_bones
+        sub = ParameterSpace(self.n_bones, rb[keep[rb]], sb[keep[sb]], tb[keep[tb]])
+        return sub, np.flatnonzero(keep[self.column_bones])
+
     def split(self, dp: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Split ``dp`` (shape ``(P,)``) into ``omega (r, 3)``, ``sigma (s,)``, ``tau (t, 3)``."""
         dp = np.asarray(dp, dtype=float)

@@ -17,7 +17,8 @@ from ..exceptions import InputError
 from ..skeleton import Skeleton
 from ..stroke import Stroke
 from .blackbox import FiniteDifferenceRig
-from .coarsening import DEFAULT_K, coarsen
+from .checks import TINY_FRACTION
+from .coarsening import DEFAULT_K, Coarsening, coarsen
 from .curves import DEFAULT_POINT_BUDGET, CurveLayout, resample_rigged, resampling_matrix
 from .drawover import SurfaceCurve, project_onto_mesh
 from .parameters import ParameterSpace, RigPose
@@ -58,7 +59,21 @@ def lbs_mismatch(skeleton: Skeleton, pose: RigPose, rest: np.ndarray, weights: n
     return float(np.linalg.norm(skinned - deformed[weighted], axis=1).max())
 
 
-def _representatives(deformed: np.ndarray, weights: np.ndarray, k: int):
+def _representatives(deformed: np.ndarray, weights: np.ndarray, k: int
+                     ) -> tuple[Coarsening, np.ndarray]:
+    """k-means representatives of the weighted mesh vertices (Eq. 12).
+
+    Args:
+        deformed: Mesh vertices at the current pose, ``(V, 3)``.
+        weights: Their bone weights, ``(V, n)``; unweighted vertices are left out.
+        k: Number of representatives.
+
+    Returns:
+        ``(coarsening, vertex index of each representative (k,))``.
+
+    Raises:
+        InputError: No vertex has bone weights.
+    """
     weighted = np.flatnonzero(weights.sum(axis=1) > 0)
     if weighted.size == 0:
         raise InputError("The character's mesh has no bone weights: skin it to the armature.")
@@ -70,7 +85,8 @@ def build_lbs_problem(skeleton: Skeleton, start: RigPose, space: ParameterSpace,
                       camera: Camera, strokes: Sequence[Stroke], curve_points: np.ndarray,
                       curve_weights: np.ndarray, layout: CurveLayout, mesh_rest: np.ndarray,
                       mesh_deformed: np.ndarray, mesh_weights: np.ndarray, k: int = DEFAULT_K,
-                      budget: int = DEFAULT_POINT_BUDGET) -> AbstractionProblem:
+                      budget: int = DEFAULT_POINT_BUDGET,
+                      stroke_labels: Sequence[str] = ()) -> AbstractionProblem:
     """An abstraction problem on the analytic LBS rig.
 
     Args:
@@ -87,6 +103,7 @@ def build_lbs_problem(skeleton: Skeleton, start: RigPose, space: ParameterSpace,
         mesh_weights: Mesh bone weights, ``(V, n)`` (unweighted rows are skipped).
         k: Representative vertices (Eq. 12).
         budget: Abstraction points after resampling.
+        stroke_labels: Names of the strokes for messages.
 
     Returns:
         The problem.
@@ -103,7 +120,7 @@ def build_lbs_problem(skeleton: Skeleton, start: RigPose, space: ParameterSpace,
     y_rep = lbs_weighted_rest(mesh_rest[rep_idx], mesh_weights[rep_idx])
     rig = LbsRig(skeleton, space, y_abs, y_rep)
     return AbstractionProblem(rig, skeleton.names, camera, new_layout, tuple(strokes), coarse,
-                              start)
+                              start, tuple(stroke_labels))
 
 
 def build_blackbox_problem(names: tuple[str, ...], start: RigPose, space: ParameterSpace,
@@ -112,7 +129,9 @@ def build_blackbox_problem(names: tuple[str, ...], start: RigPose, space: Parame
                            layout: CurveLayout, mesh_deformed: np.ndarray,
                            mesh_weights: np.ndarray | None = None, k: int = DEFAULT_K,
                            budget: int = DEFAULT_POINT_BUDGET,
-                           step: float = 1e-4) -> AbstractionProblem:
+                           step: float = 1e-4, skeleton: Skeleton | None = None,
+                           curve_weights: np.ndarray | None = None,
+                           stroke_labels: Sequence[str] = ()) -> AbstractionProblem:
     """An abstraction problem on a black-box rig (finite differences).
 
     Args:
@@ -130,6 +149,11 @@ def build_blackbox_problem(names: tuple[str, ...], start: RigPose, space: Parame
         k: Representative vertices.
         budget: Abstraction points after resampling.
         step: Finite-difference step.
+        skeleton: The skeleton (for the end-on check), optional.
+        curve_weights: Bone weights of the raw points ``(m_raw, n)``, optional: with them
+            only the bones drawn on move (see :data:`.inputs.MOVE_DRAWN`), without them
+            every bone whose parameters move a matched point.
+        stroke_labels: Names of the strokes for messages.
 
     Returns:
         The problem.
@@ -140,11 +164,18 @@ def build_blackbox_problem(names: tuple[str, ...], start: RigPose, space: Parame
     mat, new_layout = resampling_matrix(raw0, layout, budget)
 
     def evaluator(pose: RigPose) -> tuple[np.ndarray, np.ndarray]:
+        """Resampled abstraction points ``(m, 3)`` and representatives ``(k, 3)``."""
         raw, verts = evaluate_raw(pose)
         return np.asarray(mat @ raw), np.asarray(verts)[rep_idx]
 
     rig = FiniteDifferenceRig(space, evaluator, step=step)
-    return AbstractionProblem(rig, names, camera, new_layout, tuple(strokes), coarse, start)
+    point_weights = None
+    if curve_weights is not None:
+        w = np.asarray(curve_weights, dtype=float)
+        point_weights = np.asarray(mat @ (w / np.maximum(w.sum(axis=1, keepdims=True),
+                                                         1e-12)))
+    return AbstractionProblem(rig, names, camera, new_layout, tuple(strokes), coarse, start,
+                              tuple(stroke_labels), skeleton, point_weights)
 
 
 def drawover_curve(source: Stroke, camera: Camera, mesh_deformed: np.ndarray,
@@ -166,21 +197,49 @@ def build_drawover_problem(skeleton: Skeleton, start: RigPose, space: ParameterS
                            camera: Camera, source: Stroke, target: Stroke,
                            mesh_rest: np.ndarray, mesh_deformed: np.ndarray,
                            triangles: np.ndarray, mesh_weights: np.ndarray,
-                           k: int = DEFAULT_K) -> tuple[AbstractionProblem, SurfaceCurve]:
+                           k: int = DEFAULT_K, stroke_labels: Sequence[str] = ()
+                           ) -> tuple[AbstractionProblem, SurfaceCurve]:
     """A draw-over problem: the source stroke on the mesh is the abstraction, ``target`` its goal.
+
+    A target far from the character is refused by the solver (see
+    :func:`.checks.check_strokes_near`).
+
+    Args:
+        skeleton: The rest skeleton.
+        start: The current pose.
+        space: Free parameters.
+        camera: The view of both strokes.
+        source: Stroke drawn over the part to move (pixels).
+        target: Where it should go (pixels).
+        mesh_rest: Mesh rest vertices, ``(V, 3)`` world.
+        mesh_deformed: Mesh vertices at the current pose, ``(V, 3)``.
+        triangles: Mesh triangles, ``(T, 3)`` vertex indices.
+        mesh_weights: Mesh bone weights, ``(V, n)``.
+        k: Representative vertices (Eq. 12).
+        stroke_labels: Name of the target stroke for messages.
 
     Returns:
         ``(problem, surface_curve)``; the curve gives the source's points at any pose.
+
+    Raises:
+        InputError: The source is not over the skinned mesh, or is so short in the view
+            (a dot, or a part seen end-on) that it says nothing about what to move.
     """
+    weighted = mesh_weights.sum(axis=1) > 0
+    seen = camera.project(mesh_deformed[weighted]) if np.any(weighted) else np.zeros((0, 2))
+    size = float(np.max(np.ptp(seen, axis=0))) if len(seen) else 0.0
+    if source.length < TINY_FRACTION * size:
+        raise InputError(f"The source stroke is only {source.length:.1f} px long in this "
+                         f"view (the character is {size:.0f} px): draw it along the part to "
+                         "move, in a view where that part is seen from the side.")
     curve = drawover_curve(source, camera, mesh_deformed, triangles, mesh_weights)
     if curve.kept.size < 2:
         raise InputError("The source stroke barely touches the character: draw it over the "
                          "part to move.")
-    weighted = mesh_weights.sum(axis=1) > 0
     y_mesh = np.zeros(mesh_weights.shape + (4,))
     y_mesh[weighted] = lbs_weighted_rest(mesh_rest[weighted], mesh_weights[weighted])
     coarse, rep_idx = _representatives(mesh_deformed, mesh_weights, k)
     rig = LbsRig(skeleton, space, curve.rigged_rest(y_mesh), y_mesh[rep_idx])
     layout = CurveLayout(("draw-over",), np.array([0, curve.kept.size]))
     return AbstractionProblem(rig, skeleton.names, camera, layout, (target,), coarse,
-                              start), curve
+                              start, tuple(stroke_labels)), curve

@@ -26,7 +26,7 @@ descendants in the Jacobian (use the black-box path for such rigs).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -213,6 +213,10 @@ class LbsRig:
     def __post_init__(self) -> None:
         """Precompute the skeleton's tables."""
         object.__setattr__(self, "tables", RigTables.of(self.skeleton))
+
+    def with_space(self, space: ParameterSpace) -> LbsRig:
+        """The same rig with other free parameters (e.g. the bones a drawing constrains)."""
+        return replace(self, space=space)
 
     def evaluate(self, pose: RigPose) -> tuple[np.ndarray, np.ndarray]:
         """Abstraction points ``(m, 3)`` and representative vertices ``(k, 3)`` at ``pose``."""

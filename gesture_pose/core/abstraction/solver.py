@@ -24,7 +24,9 @@ import numpy as np
 
 from ..camera import Camera
 from ..exceptions import InputError
+from ..skeleton import Skeleton
 from ..stroke import Stroke
+from .checks import end_on_message
 from .coarsening import Coarsening
 from .correspondences import (
     BY_PROXIMITY,
@@ -32,7 +34,6 @@ from .correspondences import (
     IN_ORDER,
     IN_ORDER_CLOSEST,
     Correspondences,
-    assign_strokes,
     build_correspondences,
 )
 from .curves import CurveLayout
@@ -48,6 +49,7 @@ from .energies import (
     pose_term,
     regularizer_terms,
 )
+from .inputs import MOVE_DRAWN, end_on_names, prepare_phase
 from .parameters import ParameterSpace, RigPose
 from .qp import StepLimits, build_step_qp, project_to_limits, solve_step_qp, solve_step_unbounded
 
@@ -89,6 +91,9 @@ class SolveOptions:
             drawing). 1 keeps the paper's weight throughout (a regularized, biased fit).
         min_damping: Smallest scale of ``W_pose``; the stopping tests (other than the
             residual tolerance) apply once it is reached.
+        moved_bones: ``"DRAWN"``: only the bones the matched points are weighted on (and
+            those between them) move; ``"DRAWN_AND_PARENTS"``: every bone whose rotation
+            moves a matched point (the spine for an arm). Other bones are kept exactly.
     """
 
     correspondence: str = IN_ORDER
@@ -105,10 +110,11 @@ class SolveOptions:
     line_search_steps: int = 8
     damping_decay: float = 0.3
     min_damping: float = 1e-4
+    moved_bones: str = MOVE_DRAWN
 
     def lambdas(self, damping: float = 1.0) -> tuple[float, float, float]:
-        """``(lambda_pose, lambda_plane, lambda_dist)`` with the step terms scaled."""
-        return (self.lambda_pose * damping, self.lambda_plane * damping, self.lambda_dist)
+        """``(lambda_pose, lambda_plane, lambda_dist)`` with ``W_pose`` scaled by ``damping``."""
+        return (self.lambda_pose * damping, self.lambda_plane, self.lambda_dist)
 
 
 @dataclass(frozen=True)
@@ -123,6 +129,14 @@ class AbstractionProblem:
         strokes: Target strokes in pixels, oldest first.
         coarse: Representative vertices of the regularizers.
         start: Pose before the solve.
+        stroke_labels: Names of the strokes for messages (e.g. ``"stroke 6 of 6 in layer
+            'Lines'"``); ``"stroke i"`` when empty.
+        skeleton: The skeleton, for the end-on check of black-box rigs (an
+            :class:`LbsRig` has its own).
+        point_weights: Bone weights of the abstraction points, ``(m, n)``, for the
+            choice of moving bones and the end-on check (an :class:`LbsRig`'s own weights
+            when None; without either, every bone whose rotation moves a matched point
+            moves).
     """
 
     rig: RigModel
@@ -132,6 +146,9 @@ class AbstractionProblem:
     strokes: tuple[Stroke, ...]
     coarse: Coarsening
     start: RigPose
+    stroke_labels: tuple[str, ...] = ()
+    skeleton: Skeleton | None = None
+    point_weights: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         """Check that there is something to match."""
@@ -157,6 +174,8 @@ class SolveResult:
         active_bounds: Bounds active at the last update (scales, IK limits).
         pairs: ``(curve, stroke)`` pairs matched.
         warnings: Human-readable notes.
+        frozen: Bones left as they were because no matched abstraction point depends on
+            them (see :func:`.checks.constrained_bones`).
     """
 
     pose: RigPose
@@ -172,6 +191,7 @@ class SolveResult:
     active_bounds: tuple[str, ...]
     pairs: tuple[tuple[int, int], ...]
     warnings: tuple[str, ...] = ()
+    frozen: tuple[str, ...] = ()
 
 
 def _stalled(residuals: list[float], window: int) -> bool:
@@ -183,6 +203,7 @@ def _stalled(residuals: list[float], window: int) -> bool:
 
 
 def _rms_px(camera: Camera, x: np.ndarray, corr: Correspondences) -> float:
+    """Weighted RMS distance between projected correspondences and targets, pixels."""
     res = corr.residuals(camera.project(x))
     return float(np.sqrt(corr.weights @ np.sum(res * res, axis=1)))
 
@@ -241,38 +262,36 @@ def _solve_phase(problem: AbstractionProblem, opt: SolveOptions) -> SolveResult:
     space = rig.space
     pose = project_to_limits(problem.start, space, opt.limits) if opt.bounded else problem.start
     x, z = rig.evaluate(pose)
-    rest_d = pair_distances(z, coarse)
-    z_start = z
     depth = float(np.mean(cam.depth(x)))
     if depth <= 0 and cam.is_perspective:
         raise InputError("The abstraction is behind the view: look at the character.")
+    setup = prepare_phase(problem, pose, x, z, opt)
+    pairs, rows, rig, cached = setup.pairs, setup.rows, setup.rig, setup.jacobians
+    space, warnings = rig.space, list(setup.warnings)
     ppu = cam.pixels_per_unit(max(depth, 1e-6))
-    px = cam.project(x)
-    curves = [px[layout.curve(i)] for i in range(layout.n_curves)]
-    pairs = assign_strokes(curves, list(problem.strokes), opt.assignment)
+    z_start, rest_d = z, pair_distances(z, coarse)
     strokes = list(problem.strokes)
-    corr0 = build_correspondences(px, layout, strokes, pairs, opt.correspondence)
+    corr0 = build_correspondences(cam.project(x), layout, strokes, pairs, opt.correspondence)
     initial = _rms_px(cam, x, corr0)
     energies, times, residuals = [], [], []
-    qp_iters, active, converged, warnings = 0, (), False, []
+    qp_iters, active, converged = 0, (), False
     it, damping = 0, 1.0
     best = (np.inf, pose)
     while it < opt.max_iterations:
         it += 1
         t_it = time.perf_counter()
-        x, z, jx, jz = rig.jacobians(pose)
+        x, z, jx, jz = rig.jacobians(pose) if cached is None else cached
+        cached = None
         corr = build_correspondences(cam.project(x), layout, strokes, pairs, opt.correspondence)
         now = _rms_px(cam, x, corr)
         if now < best[0]:
             best = (now, pose)
         hm, gm, em = match_term(cam, x, jx, corr, ppu)
         lambdas = opt.lambdas(damping)
-        lambdas = (lambdas[0], opt.lambda_plane, lambdas[2])
         hr, gr, er = regularizer_terms(cam, z, jz, coarse, z_start, rest_d, lambdas)
         metric = pose_metric(jz, coarse)
         hp, gp, ep = pose_term(metric, space.deviation(problem.start, pose), lambdas[0])
-        model = QuadraticModel(hm + hr + hp, gm + gr + gp,
-                               {"E_match": em, "W_pose": ep, **er})
+        model = QuadraticModel(hm + hr + hp, gm + gr + gp, {"E_match": em, "W_pose": ep, **er})
         energy = model.energy
         if opt.bounded:
             sol = solve_step_qp(build_step_qp(model, space, pose, opt.limits, problem.names))
@@ -318,10 +337,12 @@ def _solve_phase(problem: AbstractionProblem, opt: SolveOptions) -> SolveResult:
         x, _ = rig.evaluate(pose)
         final = build_correspondences(cam.project(x), layout, strokes, pairs,
                                       opt.correspondence)
+    if (names := end_on_names(problem, pose, rows)) and not warnings:
+        warnings.append(end_on_message(names, after=True))
     if len(strokes) > layout.n_curves:
         warnings.append(f"{len(strokes) - layout.n_curves} stroke(s) had no curve to match.")
     if not converged:
         warnings.append(f"Stopped after {it} iterations before converging.")
     return SolveResult(pose, it, converged, _rms_px(cam, x, final), initial, tuple(energies),
                        tuple(residuals), time.perf_counter() - t_start, tuple(times),
-                       qp_iters, tuple(active), pairs, tuple(warnings))
+                       qp_iters, tuple(active), pairs, tuple(warnings), setup.frozen)
