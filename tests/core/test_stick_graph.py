@@ -122,3 +122,58 @@ def test_graph_nodes_and_corners():
     assert simplify(pts, 3.0).tolist() == [0, 2, 4]
     g = build_graph([pts, [[100, 0], [160, -40]]], snap_radius=5)
     assert len(g.nodes) == 4 and sorted(g.degrees().tolist()) == [1, 1, 1, 3]
+
+
+def _animal():
+    """A four-legged skeleton: body, a 3-bone neck, two-bone legs (hind from the hips)."""
+    from gesture_pose.core.skeleton import Skeleton
+    from tests.core.fixtures import frame_along
+    rows = [("hips", None, (0, 0, 1.0), (0, -0.6, 1.0)),
+            ("neck", "hips", (0, -0.6, 1.0), (0, -0.8, 1.3)),
+            ("neck.001", "neck", (0, -0.8, 1.3), (0, -0.95, 1.5)),
+            ("head", "neck.001", (0, -0.95, 1.5), (0, -1.2, 1.45))]
+    for side, sx in (("L", 1), ("R", -1)):
+        rows += [(f"front_upper.{side}", "hips", (0.15 * sx, -0.6, 1.0),
+                  (0.15 * sx, -0.65, 0.5)),
+                 (f"front_lower.{side}", f"front_upper.{side}", (0.15 * sx, -0.65, 0.5),
+                  (0.15 * sx, -0.6, 0.0)),
+                 (f"hind_upper.{side}", "hips", (0.15 * sx, 0.0, 1.0), (0.15 * sx, 0.1, 0.5)),
+                 (f"hind_lower.{side}", f"hind_upper.{side}", (0.15 * sx, 0.1, 0.5),
+                  (0.15 * sx, 0.0, 0.0))]
+    order = {r[0]: i for i, r in enumerate(rows)}
+    heads = np.array([r[2] for r in rows], float)
+    tails = np.array([r[3] for r in rows], float)
+    n = len(rows)
+    return Skeleton(tuple(r[0] for r in rows),
+                    np.array([order[r[1]] if r[1] else -1 for r in rows]), heads, tails,
+                    np.stack([frame_along(t - h) for h, t in zip(heads, tails, strict=True)]),
+                    np.ones(n, bool), np.zeros(n, bool), np.ones(n, bool))
+
+
+def test_non_humanoid_matched_by_topology():
+    from gesture_pose.core.camera import Camera
+    from gesture_pose.core.stick.figure import character_figure
+    sk = _animal()
+    fig, humanoid = character_figure(sk)
+    assert not humanoid and fig.n_joints == sk.n_bones + 1
+    cam = Camera.look_at([3.0, -2.0, 1.0], [0, -0.4, 0.7], width=800, height=600)
+    pos = fig.joint_positions(sk.rest_heads, sk.rest_tails)
+    px = cam.project(pos)
+    strokes = [np.linspace(px[p], px[c], 5) for c, p in enumerate(fig.joint_parents) if p >= 0]
+    stick = stick_figure_from_strokes(strokes[::-1], fig, snap_radius=6.0)
+    assert np.allclose(stick.points, px, atol=1e-6) or stick.ambiguous_sides == ("limbs",)
+    # The neck (3 segments) is never taken for a leg (2 segments).
+    for name in ("neck", "neck.001", "head"):
+        assert np.allclose(stick.points[fig.joint(name)], px[fig.joint(name)])
+
+
+def test_symmetric_topology_is_reported_ambiguous():
+    from gesture_pose.core.stick.figure import topology_figure
+    from tests.core.fixtures import tree_skeleton
+    sk = tree_skeleton()
+    fig = topology_figure(sk)
+    pos = fig.joint_positions(sk.rest_heads, sk.rest_tails)[:, [0, 2]] * 200 + 400
+    strokes = [np.linspace(pos[p], pos[c], 5) for c, p in enumerate(fig.joint_parents)
+               if p >= 0]
+    with pytest.raises(InputError, match="different ways"):
+        stick_figure_from_strokes(strokes, fig, snap_radius=5.0)

@@ -157,3 +157,33 @@ def test_drag_local_and_global():
     assert not np.allclose(glob.points[fig.joint("elbow.L")], stick.points[fig.joint("elbow.L")])
     shift = glob.points[fig.joint("neck")] - stick.points[fig.joint("neck")]
     assert np.allclose(glob.points[fig.joint("head")] - stick.points[fig.joint("head")], shift)
+
+
+def test_non_humanoid_solve_reprojects_onto_the_drawing():
+    from gesture_pose.core.stick.figure import character_figure
+    from tests.core.test_stick_graph import _animal
+    sk = _animal()
+    fig, _ = character_figure(sk)
+    model = PoseModel(sk, fig, Pose.identity(sk.n_bones))
+    x = np.zeros(model.n_genes)
+    x[6:] = np.random.default_rng(4).uniform(-0.3, 0.3, model.n_genes - 6)
+    heads, tails, _ = model.forward(x[None])
+    truth = fig.joint_positions(heads, tails)[0]
+    cam = Camera.look_at([3.0, -2.5, 1.2], [0, -0.4, 0.7], width=800, height=600)
+    px = cam.project(truth)
+    stick = StickFigure(fig.joint_names, px, np.ones(fig.n_joints, bool), fig.joint_parents,
+                        np.zeros((0, 2)))
+    res = solve_stick(StickInput(sk, cam, stick=stick, seed=2, n_suggestions=2,
+                                 ga=GAConfig(population=256, max_generations=8),
+                                 refine_iterations=60))
+    assert any("topology" in w for w in res.warnings)
+    best = res.suggestions[0]
+    assert np.abs(cam.project(best.joints) - px).max() < 3.0  # pixels
+    # Bones keep their lengths (edges drawn from the head of their bone).
+    e = fig.edges()
+    rest = fig.joint_positions(sk.rest_heads, sk.rest_tails)
+    e = e[np.linalg.norm(rest[e[:, 0]] - sk.rest_heads[fig.joint_bones[e[:, 1]]], axis=1)
+          < 1e-9]
+    assert len(e) >= 8
+    got = np.linalg.norm(best.joints[e[:, 1]] - best.joints[e[:, 0]], axis=1)
+    assert np.allclose(got, np.linalg.norm(truth[e[:, 1]] - truth[e[:, 0]], axis=1))

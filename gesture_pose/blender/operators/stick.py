@@ -18,7 +18,7 @@ from ...core.camera import Camera
 from ...core.exceptions import InputError
 from ...core.skeleton import Pose
 from ...core.stick.edit import GLOBAL_RADIUS, drag_node
-from ...core.stick.figure import HUMANOID_JOINTS, CharacterFigure, humanoid_figure
+from ...core.stick.figure import HUMANOID_JOINTS, CharacterFigure, character_figure
 from ...core.stick.graph import SNAP_RADIUS, StickFigure, stick_figure_from_strokes
 from ...core.stick.pins import EnvPinSpec, LimbPinSpec, limb_parameter, pin_candidates
 from ...core.stick.solve import StickInput, StickResult, solve_stick
@@ -86,7 +86,7 @@ def read_stick_scene(context, arm_obj, sketch_obj, snap_radius: float = SNAP_RAD
     if not all(np.all(np.isfinite(p)) for p in pts):
         raise InputError("Part of the drawing is behind the view: draw in front of the "
                          "camera.")
-    figure = humanoid_figure(data.skeleton, data.ik_limits)
+    figure, _ = character_figure(data.skeleton, data.ik_limits)
     stick = stick_figure_from_strokes(pts, figure, snap_radius, facing)
     for pair in sorted(read_swaps(context.scene)):
         stick = stick.swapped(pair)
@@ -235,7 +235,7 @@ class GESTUREPOSE_OT_next_suggestion(GesturePoseOperatorMixin, bpy.types.Operato
         n = len(stored["rotations"])
         k = (int(stored.get("current", 0)) + self.step) % n
         pose = Pose(np.array(stored["rotations"][k]), np.array(stored["translations"][k]))
-        figure = humanoid_figure(data.skeleton, data.ik_limits)
+        figure, _ = character_figure(data.skeleton, data.ik_limits)
         written = apply_pose(arm, data, pose, insert_keys=self.insert_keys,
                              frame=context.scene.frame_current,
                              location_bones=[figure.root_bone])

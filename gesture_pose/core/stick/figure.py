@@ -295,3 +295,113 @@ def humanoid_figure(skeleton: Skeleton, ik_limits: np.ndarray | None = None,
         joint_names=tuple(joints), joint_parents=parents, joint_bones=np.array(bones),
         joint_at_tail=np.array(at_tail), optional=np.array([o for *_, o in HUMANOID_JOINTS]),
         root_bone=pelvis, groups=tuple(groups), forward=forward, up=up)
+
+
+def is_humanoid(figure: CharacterFigure) -> bool:
+    """Whether the figure is the humanoid stick model (pelvis, neck, arms, legs)."""
+    return figure.joint_names[:2] == ("pelvis", "neck") and "knee.L" in figure.joint_names
+
+
+def spine_joint(figure: CharacterFigure) -> int:
+    """The joint that, with the root, gives the body's main axis.
+
+    The neck for humanoids; otherwise the root's child with the largest subtree.
+    """
+    if is_humanoid(figure):
+        return figure.joint("neck")
+    kids = np.flatnonzero(figure.joint_parents == 0)
+    size = [np.sum([j in _joint_subtree(figure.joint_parents, k)
+                    for j in range(figure.n_joints)]) for k in kids]
+    return int(kids[int(np.argmax(size))]) if len(kids) else 0
+
+
+def _joint_subtree(parents: np.ndarray, j: int) -> set[int]:
+    out = {j}
+    for k in range(j + 1, len(parents)):
+        if parents[k] in out:
+            out.add(k)
+    return out
+
+
+def topology_figure(skeleton: Skeleton, ik_limits: np.ndarray | None = None,
+                    up: np.ndarray = (0.0, 0.0, 1.0), min_fraction: float = 0.04
+                    ) -> CharacterFigure:
+    """A stick model for any character: one stick edge per (deforming) bone.
+
+    The root bone's head is the root joint; every bone adds a joint at its tail, drawn from
+    its parent's joint (the offset of an unconnected bone, like a hip, is folded into its
+    edge). Bones shorter than ``min_fraction`` of the character's height are merged into
+    their children. Every bone but the root is a ball joint of +-90 degrees (+-45 of
+    twist), or the rig's IK limits where set. Joints are named after their bones.
+
+    Args:
+        skeleton: Rest skeleton.
+        ik_limits: Optional IK limits, ``(n, 3, 2)`` radians.
+        up: World up.
+        min_fraction: Shortest bone kept, as a fraction of the height.
+
+    Returns:
+        The figure.
+
+    Raises:
+        InputError: The armature has several root bones.
+    """
+    up = normalize(np.asarray(up, float))
+    use = skeleton.deform if np.any(skeleton.deform) else np.ones(skeleton.n_bones, bool)
+    roots = [i for i in range(skeleton.n_bones) if use[i] and not any(
+        use[a] for a in skeleton.ancestors(i)[1:])]
+    if len(roots) != 1:
+        raise InputError(f"The armature has {len(roots)} root bones among its deforming "
+                         "bones: the stick figure needs one root (parent them to one bone).")
+    root = roots[0]
+    pts = np.concatenate([skeleton.rest_heads, skeleton.rest_tails])
+    height = float(np.ptp(pts @ up))
+    names, bones, tails, parents = [skeleton.names[root] + ".head"], [root], [False], [-1]
+    position = [skeleton.rest_heads[root]]
+    joint_of: dict[int, int] = {}
+    head_joint: dict[int, int] = {root: 0}
+    for i in range(skeleton.n_bones):
+        if not use[i]:
+            continue
+        anc = [a for a in skeleton.ancestors(i)[1:] if use[a]]
+        parent_joint = 0
+        if anc:
+            # Drawn from the parent's tail or, when it starts there, the parent's head.
+            options = [joint_of.get(anc[0], 0), head_joint.get(anc[0], 0)]
+            gaps = [np.linalg.norm(position[o] - skeleton.rest_heads[i]) for o in options]
+            parent_joint = options[int(np.argmin(gaps))]
+        head_joint[i] = parent_joint
+        if i != root and skeleton.lengths[i] < min_fraction * height and any(
+                skeleton.parents[k] == i for k in range(skeleton.n_bones)):
+            joint_of[i] = parent_joint
+            continue
+        joint_of[i] = len(names)
+        position.append(skeleton.rest_tails[i])
+        names.append(skeleton.names[i])
+        bones.append(i)
+        tails.append(True)
+        parents.append(parent_joint)
+    groups = []
+    for i in range(skeleton.n_bones):
+        if use[i] and i != root:
+            groups.append(_group(skeleton.names[i], skeleton, [i],
+                                 (np.eye(3), np.radians([[-90, 90], [-45, 45], [-90, 90]])),
+                                 ik_limits))
+    return CharacterFigure(
+        joint_names=tuple(names), joint_parents=np.array(parents),
+        joint_bones=np.array(bones), joint_at_tail=np.array(tails),
+        optional=np.zeros(len(names), bool), root_bone=root, groups=tuple(groups),
+        forward=np.array([0.0, -1.0, 0.0]), up=up)
+
+
+def character_figure(skeleton: Skeleton, ik_limits: np.ndarray | None = None
+                     ) -> tuple[CharacterFigure, bool]:
+    """The humanoid stick model when the bones are recognised, else the topology one.
+
+    Returns:
+        ``(figure, humanoid)``.
+    """
+    try:
+        return humanoid_figure(skeleton, ik_limits), True
+    except InputError:
+        return topology_figure(skeleton, ik_limits), False

@@ -23,7 +23,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from ..exceptions import InputError
-from .figure import CharacterFigure
+from .figure import CharacterFigure, is_humanoid
 
 #: Default snapping radius in pixels.
 SNAP_RADIUS = 20.0
@@ -280,16 +280,24 @@ def match_figure(graph: DrawnGraph, figure: CharacterFigure, facing: str = "fron
     def unsided(m):
         return tuple(sorted((names[t].split(".")[0], d) for t, d in m.items()))
     if len({frozenset(unsided(m)) for m in matches}) > 1:
+        swaps = sorted({names[t] for m in matches for t, d in m.items()
+                        if any(m2.get(t) != d for m2 in matches)})
         raise InputError(
-            f"The drawing matches the character in {len(matches)} different ways (e.g. "
-            "the head and an arm could be exchanged): draw the head shorter than the arms "
-            "and bend elbows and knees.")
+            f"The drawing matches the character in {len(matches)} different ways: the "
+            f"joints {swaps[:8]} could be exchanged. Draw those limbs with different "
+            "numbers of segments (bend elbows and knees, keep the head one line) so that "
+            "they can be told apart.")
     m = matches[0]
     points = np.full((J, 2), np.nan)
     for t, d in m.items():
         points[t] = graph.nodes[d]
     present = np.isfinite(points[:, 0])
     fig = StickFigure(names, points, present, figure.joint_parents, graph.contacts)
+    if not is_humanoid(figure):
+        # Left/right pairs of a non-humanoid are told apart by topology only.
+        sided = len(matches) > 1
+        return StickFigure(names, points, present, figure.joint_parents, graph.contacts,
+                           ("limbs",) if sided else ())
     pelvis, neck = points[figure.joint("pelvis")], points[figure.joint("neck")]
     up = (neck - pelvis) / max(np.linalg.norm(neck - pelvis), 1e-9)
     sign = 1.0 if facing == "front" else -1.0

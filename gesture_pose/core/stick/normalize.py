@@ -13,20 +13,24 @@ import numpy as np
 from .graph import StickFigure
 
 
-def drawing_scale(stick: StickFigure, lengths_3d: np.ndarray) -> float:
-    """Pixels per world unit suggested by the drawing: the largest drawn/3D edge ratio.
+def drawing_scale(stick: StickFigure, lengths_3d: np.ndarray, quantile: float = 0.8) -> float:
+    """Pixels per world unit suggested by the drawing: a high quantile of drawn/3D ratios.
+
+    Foreshortening only shortens edges, perspective lengthens the nearer ones: a high
+    quantile (not the maximum) of the ratios is taken.
 
     Args:
         stick: The drawing.
         lengths_3d: 3D length of every stick edge ``(parent, child)`` of the figure,
             indexed by the child joint, shape ``(J,)``.
+        quantile: Quantile of the ratios.
 
     Returns:
-        Pixels per world unit (foreshortening only shortens edges).
+        Pixels per world unit.
     """
     e = stick.drawn_edges()
     drawn = np.linalg.norm(stick.points[e[:, 1]] - stick.points[e[:, 0]], axis=1)
-    return float(np.max(drawn / np.maximum(lengths_3d[e[:, 1]], 1e-9)))
+    return float(np.quantile(drawn / np.maximum(lengths_3d[e[:, 1]], 1e-9), quantile))
 
 
 def normalize_figure(stick: StickFigure, lengths_3d: np.ndarray, pixels_per_unit: float,

@@ -26,7 +26,7 @@ from ..rotations import exp_map, log_map, normalize, rotation_between
 from ..skeleton import Pose, Skeleton
 from .capsules import bone_masses, capsules_from_mesh
 from .environment import Environment, Seat, distance_grid, find_seat
-from .figure import CharacterFigure, humanoid_figure
+from .figure import CharacterFigure, character_figure, spine_joint
 from .genetic import GAConfig, genetic_search
 from .graph import SNAP_RADIUS, StickFigure, stick_figure_from_strokes
 from .kinematics import PoseModel
@@ -161,8 +161,9 @@ def _initial_population(model: PoseModel, bounds: np.ndarray, n: int, stick: Sti
     pop = bounds[:, 0] + rng.random((n, G)) * (bounds[:, 1] - bounds[:, 0])
     pop[:, :3] = root_center + rng.normal(scale=0.05, size=(n, 3))
     rest = fig.joint_positions(sk.rest_heads, sk.rest_tails)
-    spine_rest = normalize(rest[fig.joint("neck")] - rest[fig.joint("pelvis")])
-    s2 = stick.points[fig.joint("neck")] - stick.points[fig.joint("pelvis")]
+    top = spine_joint(fig)
+    spine_rest = normalize(rest[top] - rest[0])
+    s2 = stick.points[top] - stick.points[0]
     s2 = s2 / max(np.linalg.norm(s2), 1e-9)
     V = camera.view_matrix[:3, :3]
     right, up, back = V[0], V[1], V[2]
@@ -254,11 +255,14 @@ def _solve(inp: StickInput) -> StickResult:
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     sk, cam = inp.skeleton, inp.camera
-    figure = humanoid_figure(sk, inp.ik_limits)
+    figure, humanoid = character_figure(sk, inp.ik_limits)
     stick = inp.stick or stick_figure_from_strokes(inp.strokes, figure, inp.snap_radius,
                                                    inp.facing)
     warnings = [f"Left and right {p} look alike from this view: use Swap Sides if they are "
                 "wrong." for p in stick.ambiguous_sides]
+    if not humanoid:
+        warnings.append("The character is not a recognised humanoid: its stick figure was "
+                        "matched by topology (one line per bone).")
     base = inp.base_pose or Pose.identity(sk.n_bones)
     model = PoseModel(sk, figure, base)
     caps = capsules_from_mesh(sk, inp.mesh_vertices, inp.mesh_weights)
@@ -269,7 +273,7 @@ def _solve(inp: StickInput) -> StickResult:
     height = float(np.ptp(np.concatenate([sk.rest_heads, sk.rest_tails]) @ up))
     lengths = _edge_lengths(figure, sk)
     rest_joints = figure.joint_positions(sk.rest_heads, sk.rest_tails)
-    pelvis_j = figure.joint("pelvis")
+    pelvis_j = 0
     base_root = sk.forward(base).heads[figure.root_bone]
     timings["setup"] = time.perf_counter() - t_start
 
@@ -281,8 +285,9 @@ def _solve(inp: StickInput) -> StickResult:
     radius[caps.bones] = caps.radii
     hip_r = float(max(radius[sk.children(figure.root_bone)].max(initial=0.0),
                       radius[figure.root_bone]))
-    knee_h = float(rest_joints[figure.joint("knee.L")] @ up - np.min(
-        np.concatenate([sk.rest_heads, sk.rest_tails]) @ up))
+    low = float(np.min(np.concatenate([sk.rest_heads, sk.rest_tails]) @ up))
+    knee_h = (float(rest_joints[figure.joint("knee.L")] @ up) - low if humanoid
+              else 0.5 * float(rest_joints[0] @ up - low))
     seat_pixel = stick.points[pelvis_j]
     if inp.use_contact and len(stick.contacts):
         seat_pixel = stick.contacts[0]
@@ -302,6 +307,8 @@ def _solve(inp: StickInput) -> StickResult:
         root_range = 0.12 * height
     else:
         depth = depth_guess
+        if not env_pins:
+            root_range = 0.5 * height
         if env_pins:
             depth = float(np.mean(cam.depth(np.array([p.target for p in env_pins]))))
         root = cam.unproject_at_depth(stick.points[pelvis_j][None], depth)[0]
