@@ -10,9 +10,11 @@
    flat pose the linearized projection cannot shorten a bone (the depth direction is a
    saddle), so this start is what lets the QPs see foreshortening. The depth side of each
    lifted bone is the bind pose's when that is clear, else towards the viewer; sides that
-   break an ordering constraint are flipped greedily.
+   break an ordering constraint are flipped greedily (:mod:`.start`). Pinned bones, locked
+   axes and IK limits restrict the twists (:mod:`.rig`).
 3. A sequence of QPs (:mod:`.qp`) in twist coordinates (:mod:`.twist`) with the
-   stabilizer of Eq. 9, ordering as inequalities, until the step is negligible.
+   stabilizer of Eq. 9, ordering as inequalities, until the step or the energy decrease
+   is negligible.
 4. Near-symmetric left/right limbs made exactly symmetric (:mod:`.symmetry`).
 
 Bone lengths are exact throughout (joint positions always come from forward kinematics).
@@ -27,11 +29,12 @@ import numpy as np
 
 from ...camera import Camera
 from ...exceptions import InputError, SolverError
-from ...rotations import log_map, normalize
 from ...skeleton import Pose, Skeleton
 from ..types import Embedding2D
 from . import energies, ordering, regularity, symmetry, twist
 from .qp import LinearConstraint, build_qp, solve_qp
+from .rig import rig_rows
+from .start import start_pose
 
 
 @dataclass(frozen=True)
@@ -208,113 +211,6 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
     return setup, X_rest, contacts, names
 
 
-def _lifted_pose(skeleton: Skeleton, setup: _Setup, embedding: Embedding2D, bind: Pose,
-                 signs: np.ndarray, fixed: np.ndarray) -> Pose:
-    """Bind pose with each solving bone aimed at its drawn direction, lifted by ``signs``."""
-    s, f = embedding.solving, setup.frame
-    pose = bind
-    for k, bone in enumerate(setup.jmap.bones):
-        if fixed[k]:
-            continue
-        drawn = (embedding.joints2d[s.tail_joint[k]] - embedding.joints2d[s.head_joint[k]]) \
-            / f.scale
-        length = skeleton.lengths[bone]
-        depth = np.sqrt(max(length**2 - drawn @ drawn, 0.0)) * signs[k]
-        direction = drawn[0] * f.right + drawn[1] * f.up + depth * f.forward
-        if np.linalg.norm(direction) < 1e-9 * length:
-            continue
-        state = skeleton.forward(pose)
-        rot = skeleton.aim_local(int(bone), direction, state, pose.rotations[bone])
-        pose = pose.with_rotations(np.array([bone]), rot[None])
-    return pose
-
-
-def _start(skeleton: Skeleton, setup: _Setup, embedding: Embedding2D, bind: Pose,
-           opts: DepthOptions, pinned: np.ndarray | None) -> tuple[Pose, np.ndarray]:
-    """Lifted start pose and depth sides (step 2 of the module docstring)."""
-    jm, f = setup.jmap, setup.frame
-    fixed = (np.zeros(jm.n_bones, bool) if pinned is None
-             else np.asarray(pinned, bool)[jm.bones])
-    state = skeleton.forward(bind)
-    bind_slope = ((state.tails[jm.bones] - state.heads[jm.bones]) @ f.forward) \
-        / skeleton.lengths[jm.bones]
-    default = -1.0 if opts.toward_viewer else 1.0
-    signs = np.where(np.abs(bind_slope) > 0.3, np.sign(bind_slope), default)
-    pose = _lifted_pose(skeleton, setup, embedding, bind, signs, fixed)
-    if not setup.order:
-        return pose, signs
-
-    # Greedy flips on a linear model of the depths: flipping bone k moves every joint below
-    # its tail by -2 s_k m_k along the view (rigid offsets turning with it are ignored
-    # here; the SQP enforces the constraints exactly).
-    X, _ = twist.joint_positions(skeleton, jm, pose)
-    depth = f.depth(X)
-    s = embedding.solving
-    drawn = np.linalg.norm(embedding.joints2d[s.tail_joint] - embedding.joints2d[s.head_joint],
-                           axis=1) / f.scale
-    lengths = skeleton.lengths[jm.bones]
-    lift = np.sqrt(np.maximum(lengths**2 - drawn**2, 0.0))
-    lifted = np.flatnonzero((drawn < 0.98 * lengths) & ~fixed)
-    shift = jm.moves[:, lifted].astype(float) * lift[lifted]
-
-    def badness(d: np.ndarray) -> float:
-        return float(np.sum(ordering.violations(setup.order, d)))
-
-    current, flipped = badness(depth), False
-    for _ in range(len(lifted)):
-        if current <= 1e-12:
-            break
-        trials = depth[:, None] - 2.0 * signs[lifted] * shift
-        scores = np.array([badness(trials[:, i]) for i in range(len(lifted))])
-        if not len(scores) or scores.min() >= current - 1e-12:
-            break
-        i = int(np.argmin(scores))
-        signs[lifted[i]] = -signs[lifted[i]]
-        depth, current, flipped = trials[:, i], scores[i], True
-    if flipped:
-        pose = _lifted_pose(skeleton, setup, embedding, bind, signs, fixed)
-    return pose, signs
-
-
-def _dof_rows(skeleton: Skeleton, jmap: twist.JointMap, pose: Pose, frames: np.ndarray,
-              lock: np.ndarray | None, limits: np.ndarray | None,
-              pinned: np.ndarray | None) -> list[LinearConstraint]:
-    """Rig restrictions on the twists: pinned bones, locked axes and IK limits.
-
-    The local rotation vector after the step is about ``log(Q) + F^T delta`` (first order
-    around small rotations), so a locked local axis ``a`` gives the row
-    ``F[:, a] . delta = -log(Q)_a`` and an IK limit ``[lo, hi]`` the bounds
-    ``lo - log(Q)_a <= F[:, a] . delta <= hi - log(Q)_a``.
-    """
-    m = jmap.n_bones
-    rows, lo, hi, labels = [], [], [], []
-    rotvec = log_map(pose.rotations[jmap.bones])
-    for k, bone in enumerate(jmap.bones):
-        for axis in range(3):
-            fixed = bool(pinned is not None and pinned[bone])
-            locked = bool(lock is not None and lock[bone, axis])
-            lim = limits[bone, axis] if limits is not None else np.array([np.nan, np.nan])
-            if not (fixed or locked or np.all(np.isfinite(lim))):
-                continue
-            row = np.zeros((m, 3))
-            if fixed:
-                row[k, axis] = 1.0
-                lo_k = hi_k = 0.0
-            else:
-                row[k] = frames[k][:, axis]
-                lo_k = hi_k = -rotvec[k, axis]
-                if not locked:
-                    lo_k, hi_k = lim[0] - rotvec[k, axis], lim[1] - rotvec[k, axis]
-            rows.append(row.ravel())
-            lo.append(lo_k)
-            hi.append(hi_k)
-            kind = "pinned" if fixed else ("locked" if locked else "ik limit")
-            labels.append(f"{kind} {skeleton.names[bone]} {'xyz'[axis]}")
-    if not rows:
-        return []
-    return [LinearConstraint(np.array(rows), np.array(lo), np.array(hi), tuple(labels))]
-
-
 def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
                  pose: Pose | None = None, *, lock_rotation: np.ndarray | None = None,
                  ik_limits: np.ndarray | None = None, pinned: np.ndarray | None = None,
@@ -353,7 +249,8 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
                                             link_confidence)
     timings = {"setup": time.perf_counter() - t0}
     t1 = time.perf_counter()
-    current, _ = _start(skeleton, setup, embedding, bind, opts, pinned)
+    current, _ = start_pose(skeleton, setup.jmap, setup.frame, setup.order, embedding,
+                            bind, opts.toward_viewer, pinned)
     timings["start"] = time.perf_counter() - t1
     jm = setup.jmap
     warnings: list[str] = []
@@ -372,8 +269,8 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
             break
         previous = energy
         G = twist.position_jacobian(jm, X, state)
-        dof = _dof_rows(skeleton, jm, current, state.frames[jm.bones], lock_rotation,
-                        ik_limits, pinned)
+        dof = rig_rows(skeleton, jm, current, state.frames[jm.bones], lock_rotation,
+                       ik_limits, pinned)
         problem = build_qp(setup.terms, constraints, dof, X.ravel(), G,
                            alpha=opts.alpha, kappa=setup.kappa, soften=soften,
                            rho=opts.soft_penalty)
@@ -455,8 +352,3 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
         timings=timings,
         warnings=tuple(warnings),
     )
-
-
-def root_view_axis(camera: Camera, point: np.ndarray) -> np.ndarray:
-    """Unit view direction at a world point (the axis :func:`symmetry.flip_depth` uses)."""
-    return normalize(camera.view_directions(np.asarray(point, float)[None])[0])
