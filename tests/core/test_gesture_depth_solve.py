@@ -172,3 +172,19 @@ def test_a_failing_qp_keeps_the_last_valid_pose(monkeypatch):
     limit = 1
     with pytest.raises(SolverError):
         solve_pose3d(sk, emb, cam)
+
+
+def test_ik_limits_bound_the_local_rotation():
+    from gesture_pose.core.rotations import log_map
+
+    sk = tree_skeleton()
+    cam = front_camera(ortho=True)
+    truth = Pose(exp_map(np.random.default_rng(4).normal(scale=0.7, size=(6, 3))),
+                 np.zeros((6, 3)))
+    emb = project_embedding(sk, solving_skeleton(sk), truth, cam)
+    free = solve_pose3d(sk, emb, cam)
+    limits = np.full((6, 3, 2), np.nan)
+    limits[2, :, :] = [-0.15, 0.15]  # arm.L may turn 0.15 rad about each local axis
+    res = solve_pose3d(sk, emb, cam, ik_limits=limits)
+    assert np.abs(log_map(free.pose.rotations[2])).max() > 0.3  # the limit matters
+    assert np.abs(log_map(res.pose.rotations[2])).max() <= 0.15 + 2e-3
