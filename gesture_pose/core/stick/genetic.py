@@ -41,8 +41,8 @@ class GAConfig:
     eta: float = 10.0
     mutation_rate: float = 0.1
     mutation_scale: float = 0.1
-    max_generations: int = 30
-    patience: int = 5
+    max_generations: int = 15
+    patience: int = 4
     tol: float = 1e-3
 
 

@@ -238,16 +238,20 @@ class PoseModel:
         all_piv = np.concatenate([np.tile(heads[r], (3, 1)), pivots])
         all_bone = np.concatenate([[r, r, r], self._gene_bone])
         all_gene = np.concatenate([[3, 4, 5], self._gene_index])
-        out = []
-        for pts in (heads, tails):
-            mask = self._desc[all_bone]  # (E, n)
-            mov = np.cross(all_axes[:, None, :], pts[None] - all_piv[:, None, :])
-            mov *= mask[..., None]
-            J = np.zeros((G, n, 3))
-            np.add.at(J, all_gene, mov)
-            J[:3] = np.eye(3)[:, None, :]
-            out.append(np.transpose(J, (1, 2, 0)))
-        return heads, tails, out[0], out[1]
+        pts = np.concatenate([heads, tails])  # (2n, 3)
+        mask = np.tile(self._desc[all_bone], (1, 2))  # (E, 2n)
+        # Moving ``p`` by a turn about ``w`` through ``c``: w x (p - c), all entries at once.
+        a, d = all_axes[:, None, :], pts[None] - all_piv[:, None, :]
+        mov = np.stack([a[..., 1] * d[..., 2] - a[..., 2] * d[..., 1],
+                        a[..., 2] * d[..., 0] - a[..., 0] * d[..., 2],
+                        a[..., 0] * d[..., 1] - a[..., 1] * d[..., 0]], -1)
+        mov *= mask[..., None]
+        onehot = np.zeros((G, len(all_gene)))
+        onehot[all_gene, np.arange(len(all_gene))] = 1.0
+        J = (onehot @ mov.reshape(len(all_gene), -1)).reshape(G, 2 * n, 3)
+        J[:3] = np.eye(3)[:, None, :]
+        J = np.transpose(J, (1, 2, 0))
+        return heads, tails, J[:n], J[n:]
 
     def to_pose(self, genes: np.ndarray) -> Pose:
         """The :class:`Pose` of one gene vector (shape ``(G,)``)."""
