@@ -175,10 +175,32 @@ def build_stick_scene(pose: str = "sit", noise_px: float = 1.5, seed: int = 0,
             "environment": env}
 
 
+def add_example_sketches(arm: bpy.types.Object, camera_obj: bpy.types.Object,
+                         poses: Sequence[str]) -> list[bpy.types.Object]:
+    """Hidden Grease Pencil objects ``Sketch_<pose>`` holding other example figures.
+
+    Show one (and hide *Sketch*) to pose the character from it. The character is left at
+    rest.
+    """
+    out = []
+    for pose in poses:
+        pose_stick_humanoid(arm, pose)
+        gp = builders.add_grease_pencil(f"Sketch_{pose}", stick_strokes(arm, camera_obj, 1.0))
+        gp.hide_set(True)
+        gp.hide_render = True
+        out.append(gp)
+    pose_stick_humanoid(arm, "rest")
+    return out
+
+
 def save_stick_scene(path: str | Path, pose: str = "sit") -> Path:
-    """Build the stick sample scene in an empty file and save it (compressed)."""
+    """Build the stick sample scene in an empty file and save it (compressed).
+
+    The visible *Sketch* holds ``pose``; the other example poses are hidden sketches.
+    """
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    build_stick_scene(pose)
+    sc = build_stick_scene(pose)
+    add_example_sketches(sc["armature"], sc["camera"], [p for p in STICK_POSES if p != pose])
     bpy.context.scene["gesture_pose_sample"] = "stick"
     path = Path(path)
     bpy.ops.wm.save_as_mainfile(filepath=str(path), compress=True)
