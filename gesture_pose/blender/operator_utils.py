@@ -24,7 +24,8 @@ def _named(name: str, kinds: frozenset[str], what: str, wanted: str) -> bpy.type
     if obj is None:
         raise InputError(f"No object named '{name}': check the {what} name.")
     if obj.type not in kinds:
-        raise InputError(f"'{name}' is a {obj.type.lower()} object but the {what} must be "
+        article = "an" if obj.type[0] in "AEIOU" else "a"
+        raise InputError(f"'{name}' is {article} {obj.type.lower()} object but the {what} must be "
                          f"{wanted}: pick another object.")
     return obj
 

@@ -163,7 +163,8 @@ def read_armature(arm_obj: bpy.types.Object) -> ArmatureData:
             matrices.
     """
     if arm_obj is None or arm_obj.type != "ARMATURE":
-        kind = "nothing" if arm_obj is None else f"a {arm_obj.type.lower()} object"
+        article = "an" if arm_obj is not None and arm_obj.type[0] in "AEIOU" else "a"
+        kind = "nothing" if arm_obj is None else f"{article} {arm_obj.type.lower()} object"
         raise InputError(f"Expected an armature object, got {kind}: select the armature.")
     arm = arm_obj.data
     bones, pose_bones = arm.bones, arm_obj.pose.bones

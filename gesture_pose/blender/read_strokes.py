@@ -208,17 +208,17 @@ def strokes_to_2d(strokes: Sequence[SketchStroke | np.ndarray], camera: Camera) 
     out = []
     for k, s in enumerate(strokes):
         pts = s.points_world if isinstance(s, SketchStroke) else np.asarray(s, dtype=float)
-        where = (f"stroke {s.index} of layer '{s.layer_name}'"
-                 if isinstance(s, SketchStroke) else f"stroke {k}")
+        where = (f"Stroke {s.index} of layer '{s.layer_name}'"
+                 if isinstance(s, SketchStroke) else f"Stroke {k}")
         if not np.all(np.isfinite(pts)):
-            raise InputError(f"The {where} has NaN or infinite coordinates: delete it and "
+            raise InputError(f"{where} has NaN or infinite coordinates: delete it and "
                              "draw it again.")
         pix = camera.project(pts.reshape(-1, 3))
         if not np.all(np.isfinite(pix)):
-            raise InputError(f"The {where} lies behind the view: draw it in front of the "
+            raise InputError(f"{where} lies behind the view: draw it in front of the "
                              "camera or change the view.")
         if len(pix) < 2 or np.linalg.norm(np.ptp(pix, axis=0)) < 1e-9:
-            raise InputError(f"The {where} is a single point in this view: draw a longer "
+            raise InputError(f"{where} is a single point in this view: draw a longer "
                              "stroke or delete it.")
         out.append(Stroke(pix))
     return out

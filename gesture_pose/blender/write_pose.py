@@ -76,7 +76,7 @@ def set_rotation(pb: bpy.types.PoseBone, rotation: np.ndarray) -> str:
 def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
                bones: Sequence[int | str] | None = None, insert_keys: bool = True,
                frame: float | None = None, location_bones: Sequence[int | str] = (),
-               tol: float = 1e-7) -> list[str]:
+               tol: float = 1e-6) -> list[str]:
     """Write the changed local rotations (and chosen locations) of a pose to the armature.
 
     Args:

@@ -190,9 +190,12 @@ def test_chain_along_view_axis_is_reported(registered) -> None:
     stroke = builders.strokes_through([np.array([head, head + [0.0, 0.0, -0.5]])], cam, head)
     gp = builders.add_grease_pencil("Sketch", stroke)
     assert j > i
+    before = rotations(arm)
     with pytest.raises(RuntimeError, match="along the view axis"):
         pose_stroke(armature=arm.name, sketch=gp.name, end_bone="upper_arm.L",
                     start_bone="upper_arm.L")
+    _unchanged(arm, before)
+    assert len(builders.read_strokes(gp)) == 1
 
 
 @pytest.mark.parametrize("pins", [("hand.L",), ("hand.L", "fingers.L")])
@@ -212,3 +215,56 @@ def test_pinned_bones_keep_their_world_position(scene, pins) -> None:
         np.testing.assert_allclose(after[name][1], before[name][1], atol=2e-6)
     # The arm did move: the pins were restored, not the stroke ignored.
     assert np.linalg.norm(after["forearm.L"][0] - before["forearm.L"][0]) > 0.02
+
+
+def test_too_short_stroke_is_reported(scene) -> None:
+    arm, _, cam, gp = scene
+    head = builders.joint_positions(arm)["upper_arm.L"][0]
+    builders.add_strokes(gp, builders.strokes_through(
+        [np.array([head, head + [0.004, 0.0, 0.0]])], cam, head))
+    before = rotations(arm)
+    _assert_refused("px long: draw a longer stroke", armature=arm.name, sketch=gp.name)
+    _unchanged(arm, before)
+
+
+def test_plane_mode_lays_the_arm_flat_to_the_view(scene) -> None:
+    arm, _, cam, gp = scene
+    builders.add_strokes(gp, [builders.chain_stroke(
+        arm, cam, ARM_CHAIN, builders.HUMANOID_POSES["raise_left_arm"])])
+    assert pose_stroke(armature=arm.name, sketch=gp.name, mode="PLANE") == {"FINISHED"}
+    bpy.context.view_layer.update()
+    forward = camera_from_object(cam, bpy.context.scene).forward
+    joints = builders.joint_positions(arm)
+    for name in ("upper_arm.L", "forearm.L"):
+        head, tail = joints[name]
+        d = (tail - head) / np.linalg.norm(tail - head)
+        assert abs(float(d @ forward)) < 1e-4
+
+
+def test_shape_tracking_follows_a_stroke_drawn_too_big(scene) -> None:
+    # The raised-arm stroke drawn at twice its size from the shoulder: position tracking
+    # lands the joints on the big stroke; shape tracking keeps the stroke's shape at the
+    # arm's size, so the arm points where the (scaled) stroke's first part points.
+    arm, _, cam, gp = scene
+    stroke = builders.chain_stroke(arm, cam, ARM_CHAIN, builders.HUMANOID_POSES["raise_left_arm"])
+    big = stroke[0] + 2.0 * (stroke - stroke[0])
+    builders.add_strokes(gp, [big])
+    assert pose_stroke(armature=arm.name, sketch=gp.name, tracking="SHAPE") == {"FINISHED"}
+    px = projected_chain(arm, cam, ARM_CHAIN)
+    small = builders.project_to_pixels(stroke, cam)
+    drawn_big = builders.project_to_pixels(big, cam)
+    assert distance_to_polyline(px[1:3], small).max() < 6.0
+    assert distance_to_polyline(px[2:3], drawn_big).max() > 20.0
+
+
+def test_stroke_index_and_remove_used_strokes(scene) -> None:
+    arm, _, cam, gp = scene
+    strokes = builders.example_strokes_humanoid(arm, cam)
+    builders.add_strokes(gp, strokes)
+    assert pose_stroke(armature=arm.name, sketch=gp.name, stroke_index=0,
+                       remove_used_strokes=True) == {"FINISHED"}
+    assert keyed_frames(arm, "upper_arm.L", "rotation_quaternion") == [5.0]
+    assert keyed_frames(arm, "thigh.R", "rotation_quaternion") == []
+    left = builders.read_strokes(gp)
+    assert len(left) == 1
+    np.testing.assert_allclose(left[0], strokes[1], atol=1e-5)

@@ -369,7 +369,7 @@ def test_strokes_to_2d_projects_and_rejects(bpy_blank):
     with pytest.raises(InputError, match="behind the view"):
         strokes_to_2d([line - [0.0, 10.0, 0.0]], camera)
     obj = add_grease_pencil([line, np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])])
-    with pytest.raises(InputError, match="stroke 1 of layer 'Lines' is a single point"):
+    with pytest.raises(InputError, match="Stroke 1 of layer 'Lines' is a single point"):
         strokes_to_2d(read_sketch(obj), camera)
 
 

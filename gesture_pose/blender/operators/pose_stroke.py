@@ -76,8 +76,9 @@ def choose_strokes(strokes: list[SketchStroke], active_layer: str | None, index:
         return tuple(strokes)
     if index >= 0:
         if index >= len(strokes):
-            raise InputError(f"Stroke index {index} is out of range: the sketch has "
-                             f"{len(strokes)} strokes at this frame.")
+            count = f"{len(strokes)} stroke" + ("s" if len(strokes) != 1 else "")
+            raise InputError(f"Stroke index {index} is out of range: the sketch has {count} "
+                             "at this frame.")
         return (strokes[index],)
     on_layer = [s for s in strokes if s.layer_name == active_layer]
     return ((on_layer or strokes)[-1],)
@@ -165,9 +166,11 @@ class GESTUREPOSE_OT_pose_stroke(GesturePoseOperatorMixin, bpy.types.Operator):
             self.report({"WARNING"}, warning)
         ms = (time.perf_counter() - t0) * 1e3
         mean = float(np.mean([r.mean_distance for r in results]))
-        report_result(self, f"Posed {len(written)} bones ({', '.join(written)}) from "
-                            f"{len(results)} stroke(s) in {ms:.1f} ms; joints "
-                            f"{mean:.1f} px from the stroke")
+        shown = ", ".join(written[:6]) + (f" and {len(written) - 6} more"
+                                          if len(written) > 6 else "")
+        strokes = f"{len(results)} stroke" + ("s" if len(results) != 1 else "")
+        report_result(self, f"Posed {len(written)} bones ({shown}) from {strokes} in "
+                            f"{ms:.1f} ms; joints {mean:.1f} px from the stroke")
         return {"FINISHED"}
 
 

@@ -163,10 +163,12 @@ def plan_chain(
         direction_path = frozenset(skeleton.ancestors(skeleton.index(options.direction_bone)))
     if options.start_bone is None:
         starts = pick_start(skeleton, state, camera, first_point, options.pick_radius)
+        _check_direction(skeleton, starts, options.direction_bone)
         part = ChainPart(starts, None, -1, False)
         return ChainPlan(PlanKind.FORWARD, (part,), -1, direction_path)
     start = skeleton.index(options.start_bone)
     if options.end_bone is None:
+        _check_direction(skeleton, (start,), options.direction_bone)
         return ChainPlan(PlanKind.FORWARD, (ChainPart((start,), None, -1, False),), -1,
                          direction_path)
     end = skeleton.index(options.end_bone)
@@ -189,6 +191,18 @@ def plan_chain(
         ChainPart((finish[0],), finish, finish[-1], False),
     )
     return ChainPlan(PlanKind.OVER_ROOT, parts, ancestor)
+
+
+def _check_direction(skeleton: Skeleton, starts: tuple[int, ...], direction: str | None) -> None:
+    """Refuse a direction bone that no chain from ``starts`` can reach."""
+    if direction is None:
+        return
+    below = skeleton.ancestors(skeleton.index(direction))
+    if not any(s in below for s in starts):
+        names = ", ".join(f"'{skeleton.names[s]}'" for s in starts)
+        raise InputError(f"The direction bone '{direction}' is not below the joint the stroke "
+                         f"starts at (bones {names}): pick a bone in the part you are drawing, "
+                         "or clear the direction bone.")
 
 
 def next_candidates(

@@ -362,9 +362,7 @@ def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: Cha
         ends = _segment_ends(skeleton, cs, bone, kids)
         trials = [walker.try_bone(bone, end, int(m[0]) if m.size else -1, s_prev, landed_prev)
                   for end, m in ends]
-        best = int(np.argmin([t.angle if t.rotation is not None else np.inf for t in trials]))
-        if trials[best].rotation is None:
-            best = 0
+        best = _choose_branch(walker, bone, ends, trials) if len(ends) > 1 else 0
         trial = trials[best]
         end, members = ends[best]
         if spec.stop_when_exhausted and fixed is None and pos > 0:
@@ -395,6 +393,39 @@ def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: Cha
     return PartOutcome(tuple(bones), np.array(targets).reshape(-1, 2),
                        np.array(landed).reshape(-1, 2), tuple(skipped), np.array(angles),
                        tuple(seg_ends), tuple(depth_moved))
+
+
+def _choose_branch(walker: _Walker, bone: int, ends: list[tuple[np.ndarray, np.ndarray]],
+                   trials: list[Trial]) -> int:
+    """At a branch whose children start at different points, the group to continue into.
+
+    Each choice is tried on a copy: the bone turns towards that child's head, then the
+    child's own alignment is computed; the child needing the smallest rotation wins (the
+    parent's rotations differ little, since the children's heads are close).
+
+    Returns:
+        Index into ``ends``.
+    """
+    cs = walker.cs
+    costs = []
+    for (end, members), trial in zip(ends, trials, strict=True):
+        if trial.rotation is None or members.size == 0:
+            costs.append(np.inf if trial.rotation is None else trial.angle)
+            continue
+        trial_cs = cs.copy()
+        offset = trial_cs.frames[bone].T @ (end - trial_cs.heads[bone])
+        trial_cs.set_rotation(bone, trial.rotation)
+        landed = walker.view.project(trial_cs.heads[bone] + trial_cs.frames[bone] @ offset)
+        walker.cs = trial_cs
+        try:
+            for m in members.tolist():
+                trial_cs.refresh(m)
+            child = [walker.try_bone(m, trial_cs.tails[m], -1, trial.param, landed)
+                     for m in members.tolist()]
+        finally:
+            walker.cs = cs
+        costs.append(min(t.angle if t.rotation is not None else np.inf for t in child))
+    return int(np.argmin(costs)) if np.isfinite(np.min(costs)) else 0
 
 
 def _choose(skeleton: Skeleton, walker: _Walker, candidates: np.ndarray, s_prev: float,
