@@ -187,3 +187,17 @@ def test_non_humanoid_solve_reprojects_onto_the_drawing():
     assert len(e) >= 8
     got = np.linalg.norm(best.joints[e[:, 1]] - best.joints[e[:, 0]], axis=1)
     assert np.allclose(got, np.linalg.norm(truth[e[:, 1]] - truth[e[:, 0]], axis=1))
+
+
+def test_limb_pin_is_placed_exactly():
+    from gesture_pose.core.stick.pins import LimbPinSpec
+    sk, fig, cam, stick, pins, _ = _stand_problem()
+    limb = LimbPinSpec("wrist.R", ("pelvis", "knee.R"), 0.6)
+    res = solve_stick(StickInput(sk, cam, stick=stick, environment=chair_env(), env_pins=pins,
+                                 limb_pins=(limb,), seed=1, n_suggestions=1,
+                                 ga=GAConfig(population=256, max_generations=6),
+                                 refine_iterations=40))
+    j = res.suggestions[0].joints
+    target = 0.4 * j[fig.joint("pelvis")] + 0.6 * j[fig.joint("knee.R")]
+    assert np.linalg.norm(j[fig.joint("wrist.R")] - target) < 1e-6
+    assert np.all(res.suggestions[0].pin_residuals < 1e-6)

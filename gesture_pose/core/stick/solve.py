@@ -210,6 +210,17 @@ def _chain_genes(model: PoseModel, joint: int) -> np.ndarray:
     return np.array(genes, int)
 
 
+def _spine_genes(model: PoseModel) -> np.ndarray:
+    """Genes of the spine group (empty when there is none)."""
+    start = 6
+    for g in model.figure.groups:
+        m = g.bounds.shape[0]
+        if g.name == "spine":
+            return np.arange(start, start + m)
+        start += m
+    return np.zeros(0, int)
+
+
 def _end_group_genes(model: PoseModel, joint: int) -> np.ndarray:
     """Genes of the group of the bone starting at a stick joint (foot at an ankle)."""
     fig, start = model.figure, 6
@@ -430,8 +441,15 @@ def _finish(objective: StickObjective, x: np.ndarray, bounds: np.ndarray, env_pi
         target = (1 - pin.s) * J[a] + pin.s * J[b]
         genes = _chain_genes(model, pin.joint)
         if genes.size:
-            x, _ = place_joints(objective, x, bounds, np.array([pin.joint]), target[None],
-                                genes)
+            x, res = place_joints(objective, x, bounds, np.array([pin.joint]), target[None],
+                                  genes)
+            if res.max() > 1e-6:  # out of the limb's reach: bend the spine too
+                genes = np.union1d(genes, _spine_genes(model))
+                heads, tails, _ = model.forward(x[None])
+                J = fig.joint_positions(heads, tails)[0]
+                target = (1 - pin.s) * J[a] + pin.s * J[b]
+                x, _ = place_joints(objective, x, bounds, np.array([pin.joint]),
+                                    target[None], genes)
     return x
 
 
