@@ -2,10 +2,10 @@
 
 - Solve time: chains of 3 to 45 joints in the view plane, strokes drawn through the
   projected joints of random known poses; median time per stroke and per joint.
-- Accuracy: the same strokes with drawing noise (control points jittered by a percentage
-  of the chain's projected length); mean distance of the posed joints' projections to the
-  stroke and to the true joints, as % of the chain's projected length, with feature
-  extraction and with the uniform arc-length baseline.
+- Accuracy: smooth strokes and strokes with drawn corners (segments stretched at random),
+  with drawing noise; the 2D bone-direction error against the drawn pose and the joints'
+  distance to the stroke, for feature extraction with and without the ray-circle crossing
+  and for the uniform arc-length baseline.
 - Round trip: the Pose Stroke operator on the sample humanoid's arm (read, solve, key).
 """
 
@@ -45,10 +45,24 @@ def chain_skeleton(points: np.ndarray, rng: np.random.Generator) -> Skeleton:
                     np.r_[False, np.ones(n - 1, bool)], np.ones(n, bool))
 
 
-def drawn_stroke(pixels: np.ndarray, noise_px: float, rng: np.random.Generator) -> Stroke:
-    """A smooth stroke through (jittered) control points, sampled every pixel."""
+def drawn_stroke(pixels: np.ndarray, noise_px: float, rng: np.random.Generator,
+                 corners: bool = False) -> Stroke:
+    """A stroke through (jittered) control points, sampled every pixel.
+
+    Smooth strokes are a cubic spline through the points. Corner strokes are the polyline
+    through them with every drawn segment stretched by a random factor in [0.75, 1.25]:
+    the corners are where the artist put them, not where the bone lengths say.
+    """
     pts = pixels + rng.normal(0.0, noise_px, pixels.shape) * (noise_px > 0)
     pts[0] = pixels[0]
+    if corners:
+        seg = np.diff(pts, axis=0) * rng.uniform(0.75, 1.25, (len(pts) - 1, 1))
+        pts = pts[0] + np.vstack([[0.0, 0.0], np.cumsum(seg, axis=0)])
+        dense = [pts[:1]]
+        for a, b in zip(pts[:-1], pts[1:], strict=True):
+            n = max(int(np.linalg.norm(b - a)), 1)
+            dense.append(a + np.linspace(0, 1, n + 1)[1:, None] * (b - a))
+        return Stroke(np.vstack(dense))
     t = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
     spline = CubicSpline(t, pts, axis=0)
     return Stroke(spline(np.linspace(0.0, t[-1], int(t[-1]) + 2)))
@@ -98,32 +112,52 @@ def timing_table(quick: bool) -> tuple[str, list[str], list[list]]:
             rows)
 
 
+METHODS = {
+    "features + crossing": StrokeOptions(),
+    "features only": StrokeOptions(stroke_crossing=False),
+    "uniform": StrokeOptions(feature_extraction=False),
+}
+
+
+def _direction_error(got: np.ndarray, truth: np.ndarray) -> float:
+    """Mean angle in degrees between projected bone directions, ``(k + 1, 2)`` joints each."""
+    a, b = np.diff(got, axis=0), np.diff(truth, axis=0)
+    cos = np.sum(a * b, axis=1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
+    return float(np.degrees(np.mean(np.arccos(np.clip(cos, -1.0, 1.0)))))
+
+
 def accuracy_table(quick: bool) -> tuple[str, list[str], list[list]]:
-    """Accuracy with feature extraction and with the uniform baseline under noise."""
+    """Accuracy of each method on smooth and corner strokes, with drawing noise."""
     rng = np.random.default_rng(2)
     cam = camera()
     rows = []
-    for joints in (3, 5, 10, 45):
-        for noise_pct in (0.0, 1.0, 3.0):
-            acc = {True: [], False: []}
-            for _ in range(8 if quick else 60):
-                sk, target = _case(joints - 1, rng)
-                px = cam.project(target)
-                length_px = float(np.sum(np.linalg.norm(np.diff(px, axis=0), axis=1)))
-                stroke = drawn_stroke(px, noise_pct / 100 * length_px, rng)
-                for feat in (True, False):
-                    res = pose_from_stroke(sk, Pose.identity(sk.n_bones), cam, stroke,
-                                           StrokeOptions(feature_extraction=feat))
-                    st = sk.forward(res.pose)
-                    got = cam.project(np.vstack([st.heads, st.tails[-1:]]))[1:]
-                    to_stroke = distance_to_polyline(got, stroke.points).mean()
-                    to_truth = np.linalg.norm(got - px[1:], axis=1).mean()
-                    acc[feat].append((to_stroke / length_px, to_truth / length_px))
-            f, b = np.mean(acc[True], axis=0) * 100, np.mean(acc[False], axis=0) * 100
-            rows.append([joints, noise_pct, float(f[0]), float(b[0]), float(f[1]), float(b[1])])
-    return ("Line of action: accuracy, % of the chain's projected length",
-            ["joints", "noise %", "to stroke (features)", "to stroke (uniform)",
-             "to true joints (features)", "to true joints (uniform)"], rows)
+    for style in ("smooth", "corners"):
+        for joints in (3, 5, 10, 45):
+            for noise_pct in (0.0, 0.5, 2.0):
+                err = {m: [] for m in METHODS}
+                dist = {m: [] for m in METHODS}
+                for _ in range(4 if quick else 30):
+                    sk, target = _case(joints - 1, rng)
+                    px = cam.project(target)
+                    length_px = float(np.sum(np.linalg.norm(np.diff(px, axis=0), axis=1)))
+                    stroke = drawn_stroke(px, noise_pct / 100 * length_px, rng,
+                                          corners=style == "corners")
+                    for name, opts in METHODS.items():
+                        res = pose_from_stroke(sk, Pose.identity(sk.n_bones), cam, stroke,
+                                               opts)
+                        st = sk.forward(res.pose)
+                        got = cam.project(np.vstack([st.heads, st.tails[-1:]]))
+                        err[name].append(_direction_error(got, px))
+                        dist[name].append(distance_to_polyline(got[1:], stroke.points).mean()
+                                          / length_px * 100)
+                rows.append([style, joints, noise_pct]
+                            + [float(np.mean(err[m])) for m in METHODS]
+                            + [float(np.mean(dist[m])) for m in METHODS])
+    heads = [f"{m} (deg)" for m in METHODS] + [f"{m} (% to stroke)" for m in METHODS]
+    return ("Line of action: accuracy. Mean 2D bone-direction error against the drawn pose "
+            "(degrees) and joint distance to the stroke (% of the chain's projected length); "
+            "corner strokes have each drawn segment stretched by 0.75-1.25",
+            ["stroke", "joints", "noise %", *heads], rows)
 
 
 def round_trip_table(quick: bool) -> tuple[str, list[str], list[list]]:
