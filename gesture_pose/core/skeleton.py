@@ -134,7 +134,7 @@ class Skeleton:
         """Constant parts of forward kinematics, computed once.
 
         Returns:
-            ``(rel_rot (n, 3, 3), rel_off (n, 3), steps, lengths (n,))`` where
+            ``(rel_rot (n, 3, 3), rel_off (n, 3), steps, lengths (n,), children)`` where
             ``rel_rot_i = R_p^T R_i`` and ``rel_off_i = R_p^T (r_i - r_p)`` (``R_i`` and
             ``r_i`` for roots) and ``steps`` holds ``(children, parents, children that do
             not inherit rotation)`` per tree depth.
@@ -154,7 +154,8 @@ class Skeleton:
             if kids.size:
                 steps.append((kids, p[kids], kids[free[kids]]))
         lengths = np.linalg.norm(np.asarray(self.rest_tails, float) - heads, axis=1)
-        return rel_rot, rel_off, tuple(steps), lengths
+        kids = tuple(np.flatnonzero(p == i) for i in range(len(p)))
+        return rel_rot, rel_off, tuple(steps), lengths, kids
 
     @property
     def rest_relative(self) -> tuple[np.ndarray, np.ndarray]:
@@ -188,8 +189,8 @@ class Skeleton:
             raise InputError(f"The armature has no bone named '{name}'.") from None
 
     def children(self, i: int) -> np.ndarray:
-        """Indices of the direct children of bone ``i``, shape ``(k,)``."""
-        return np.flatnonzero(self.parents == i)
+        """Indices of the direct children of bone ``i``, shape ``(k,)`` (do not modify)."""
+        return self._fk[4][i]
 
     def ancestors(self, i: int) -> list[int]:
         """Bone ``i`` and its ancestors, from ``i`` up to its root."""
@@ -211,7 +212,7 @@ class Skeleton:
         Returns:
             World-space heads, tails and frames.
         """
-        rel_rot, rel_off, steps, _ = self._fk
+        rel_rot, rel_off, steps = self._fk[:3]
         q = np.asarray(pose.rotations, dtype=float)
         frames = rel_rot @ q  # final for roots: R_i Q_i
         offsets = rel_off + np.einsum("nij,nj->ni", rel_rot, np.asarray(pose.translations,

@@ -69,7 +69,7 @@ class ViewOps:
         far = self.inverse @ np.array([ndc[0], ndc[1], 0.0, 1.0])
         near, far = near[:3] / near[3], far[:3] / far[3]
         d = far - near
-        return near, d / np.linalg.norm(d)
+        return near, d / math.sqrt(float(d @ d))
 
 
 @dataclass(frozen=True)
@@ -102,7 +102,8 @@ def circle_of(
         ``(centre, radius)``; the radius is 0 when the plane misses the sphere, and the
         centre is then the sphere point nearest the plane.
     """
-    h = plane_depth - float(view.depth(parent))
+    r = view.depth_row
+    h = plane_depth + float(r[0] * parent[0] + r[1] * parent[1] + r[2] * parent[2] + r[3])
     h = max(-length, min(length, h))
     centre = parent + h * view.forward
     return centre, math.sqrt(max(length * length - h * h, 0.0))
@@ -203,7 +204,7 @@ def place_joint(
     t = (plane_depth - float(view.depth(origin))) / rate
     hit = origin + t * direction
     radial = hit - centre
-    norm = float(np.linalg.norm(radial))
+    norm = math.sqrt(float(radial @ radial))
     if norm < 1e-12 * max(length, 1.0):
         return Placement(current.copy(), radius, False)
     return Placement(centre + radial * (radius / norm), radius, False)

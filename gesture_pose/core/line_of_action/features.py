@@ -25,30 +25,28 @@ class SampledStroke:
         points: Sample positions, shape ``(m, 2)``, pixels.
         curvature: Unsigned curvature at the samples, shape ``(m,)``, 1/pixels.
         step: Sampling step, pixels.
+        length: Arc length of the last sample, pixels.
     """
 
     params: np.ndarray
     points: np.ndarray
     curvature: np.ndarray
     step: float
+    length: float
 
     @classmethod
     def from_stroke(cls, stroke: Stroke, step: float) -> SampledStroke:
-        """Sample ``stroke`` every ``step`` pixels of arc length."""
+        """Sample ``stroke`` every ``step`` pixels of arc length (``length``: its end)."""
         s = stroke.sample_params(step)
-        return cls(s, stroke.evaluate(s), np.abs(stroke.curvature(s)), float(s[1] - s[0]))
-
-    @property
-    def length(self) -> float:
-        """Arc length, pixels."""
-        return float(self.params[-1])
+        return cls(s, stroke.evaluate(s), np.abs(stroke.curvature(s)), float(s[1] - s[0]),
+                   float(s[-1]))
 
     def at(self, s: float) -> np.ndarray:
-        """Point at arc length ``s`` (linear between samples), shape ``(2,)``."""
-        s = min(max(s, 0.0), self.length)
-        x = np.interp(s, self.params, self.points[:, 0])
-        y = np.interp(s, self.params, self.points[:, 1])
-        return np.array([x, y])
+        """Point at arc length ``s`` (linear between the evenly spaced samples), ``(2,)``."""
+        u = min(max(s, 0.0), self.length) / self.step
+        i = min(int(u), len(self.params) - 2)
+        f = u - i
+        return self.points[i] * (1.0 - f) + self.points[i + 1] * f
 
     def window(self, lo: float, hi: float) -> slice:
         """Sample indices whose arc lengths lie in ``[lo, hi]``."""

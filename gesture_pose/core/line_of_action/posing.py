@@ -93,6 +93,7 @@ class ChainState:
         heads: World heads, shape ``(n, 3)``.
         tails: World tails, shape ``(n, 3)``.
         frames: World frames, shape ``(n, 3, 3)``.
+        lengths: Bone lengths, shape ``(n,)``.
     """
 
     skeleton: Skeleton
@@ -101,18 +102,20 @@ class ChainState:
     heads: np.ndarray
     tails: np.ndarray
     frames: np.ndarray
+    lengths: np.ndarray
 
     @classmethod
     def from_state(cls, skeleton: Skeleton, rotations: np.ndarray, translations: np.ndarray,
                    state: PoseState) -> ChainState:
         """Copy a pose and its forward kinematics."""
         return cls(skeleton, rotations.copy(), translations, state.heads.copy(),
-                   state.tails.copy(), state.frames.copy())
+                   state.tails.copy(), state.frames.copy(), skeleton.lengths)
 
     def copy(self) -> ChainState:
         """An independent copy (for dry runs)."""
         return ChainState(self.skeleton, self.rotations.copy(), self.translations,
-                          self.heads.copy(), self.tails.copy(), self.frames.copy())
+                          self.heads.copy(), self.tails.copy(), self.frames.copy(),
+                          self.lengths)
 
     def carry(self, bone: int) -> np.ndarray:
         """``C`` with ``F = C Q`` for ``bone`` (its parent's frame must be current)."""
@@ -141,7 +144,7 @@ class ChainState:
         self.rotations[bone] = local
         frame = self.carry(bone) @ local
         self.frames[bone] = frame
-        self.tails[bone] = self.heads[bone] + frame[:, 1] * self.skeleton._fk[3][bone]
+        self.tails[bone] = self.heads[bone] + frame[:, 1] * self.lengths[bone]
 
 
 def aimed_rotation(cs: ChainState, bone: int, seg_end: np.ndarray,
@@ -315,10 +318,12 @@ def _segment_ends(skeleton: Skeleton, cs: ChainState, bone: int,
     if kids.size == 0:
         return [(cs.tails[bone], kids)]
     groups: list[tuple[np.ndarray, np.ndarray]] = []
-    tol = 1e-6 * max(float(np.linalg.norm(cs.tails[bone] - cs.heads[bone])), 1e-9)
+    span = cs.tails[bone] - cs.heads[bone]
+    tol2 = (1e-6 * max(math.sqrt(float(span @ span)), 1e-9)) ** 2
     for k in kids:
         for gi, (p, members) in enumerate(groups):
-            if np.linalg.norm(cs.heads[k] - p) <= tol:
+            gap = cs.heads[k] - p
+            if float(gap @ gap) <= tol2:
                 groups[gi] = (p, np.append(members, k))
                 break
         else:

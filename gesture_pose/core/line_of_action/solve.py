@@ -162,7 +162,8 @@ def pose_from_stroke(skeleton: Skeleton, pose: Pose, camera: Camera, stroke: Str
         new_pose, pin_report = restore_pins(skeleton, pose, new_pose, np.asarray(chain, int),
                                             np.asarray(pinned, bool), options.pin_iterations)
     t3 = time.perf_counter()
-    landed = _landed(skeleton, new_pose, view, outcomes)
+    landed = (_landed(skeleton, new_pose, view, outcomes) if pin_report.pinned
+              else np.concatenate([o.landed for o in outcomes]))
     mean_distance = float(np.mean(distance_to_polyline(landed, stroke.points))) if len(
         landed) else 0.0
     diff = np.abs(new_pose.rotations - pose.rotations).max(axis=(1, 2))
