@@ -8,7 +8,7 @@ from gesture_pose.core.abstraction.coarsening import coarsen, neighbour_pairs
 from gesture_pose.core.abstraction.energies import pair_distances, pose_metric, regularizer_terms
 from gesture_pose.core.abstraction.parameters import ParameterSpace, RigPose
 from gesture_pose.core.abstraction.rig import (
-    descendant_matrix,
+    RigTables,
     lbs_weighted_rest,
     point_jacobian,
     pose_bones,
@@ -28,7 +28,7 @@ def _mesh_jacobian(rings: int, segments: int):
     pose = RigPose(exp_map(rng.normal(scale=0.3, size=(6, 3))), np.ones(6), np.zeros((6, 3)))
     posed = pose_bones(skel, pose)
     y = lbs_weighted_rest(verts, weights)
-    jac = point_jacobian(posed, y, space, pose, descendant_matrix(skel))
+    jac = point_jacobian(posed, y, space, pose, RigTables.of(skel))
     z = np.einsum("nij,mnj->mi", posed.skinning[:, :3, :], y)
     return z, jac, space
 

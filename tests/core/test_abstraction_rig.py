@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -12,9 +14,14 @@ from gesture_pose.core.skeleton import Pose
 from tests.core.fixtures import tree_skeleton
 
 
-def _random_setup(seed: int):
+def _random_setup(seed: int, keep_rotation: tuple[int, ...] = ()):
+    """A random pose and rig; bones in ``keep_rotation`` do not inherit rotation."""
     rng = np.random.default_rng(seed)
     skel = tree_skeleton()
+    if keep_rotation:
+        inherit = skel.inherit_rotation.copy()
+        inherit[list(keep_rotation)] = False
+        skel = replace(skel, inherit_rotation=inherit)
     n = skel.n_bones
     pose = RigPose(exp_map(rng.normal(scale=0.4, size=(n, 3))), rng.uniform(0.7, 1.4, n),
                    rng.normal(scale=0.05, size=(n, 3)))
@@ -29,9 +36,10 @@ def _random_setup(seed: int):
     return rig, pose
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_jacobians_match_finite_differences(seed: int) -> None:
-    rig, pose = _random_setup(seed)
+@pytest.mark.parametrize(("seed", "keep_rotation"), [(0, ()), (1, ()), (2, ()), (3, (3,)),
+                                                     (4, (2, 5)), (5, (2, 3))])
+def test_jacobians_match_finite_differences(seed: int, keep_rotation: tuple[int, ...]) -> None:
+    rig, pose = _random_setup(seed, keep_rotation)
     x, z, jx, jz = rig.jacobians(pose)
     eps = 1e-6
     fx = np.empty_like(jx)

@@ -117,8 +117,9 @@ def projected_length_ratio(camera: Camera, heads: np.ndarray, tails: np.ndarray
     """
     length = np.linalg.norm(tails - heads, axis=1)
     seen = np.linalg.norm(camera.project(tails) - camera.project(heads), axis=1)
-    depth = camera.depth(0.5 * (heads + tails))
-    ppu = np.array([camera.pixels_per_unit(max(float(d), 1e-6)) for d in depth])
+    depth = np.maximum(camera.depth(0.5 * (heads + tails)), 1e-6)
+    ref = float(np.median(depth))
+    ppu = camera.pixels_per_unit(ref) * (ref / depth if camera.is_perspective else 1.0)
     return seen / np.maximum(length * ppu, 1e-12)
 
 

@@ -35,6 +35,8 @@ CLOSEST = "CLOSEST"
 IN_ORDER_CLOSEST = "IN_ORDER_CLOSEST"
 BY_ORDER = "ORDER"
 BY_PROXIMITY = "PROXIMITY"
+#: Sampling step of strokes for the assignment costs, pixels.
+ASSIGNMENT_STEP = 4.0
 
 
 @dataclass(frozen=True)
@@ -46,20 +48,26 @@ class Correspondences:
         targets: Target pixels ``T``, shape ``(q, 2)``.
         weights: Row weights, shape ``(q,)`` (summing to 1).
         pairs: ``(curve, stroke)`` index pairs that were matched.
+        selects: When every row of ``C`` picks one point with weight 1 (in-order rows),
+            the point of each row, ``(q,)`` (a faster path than the sparse product);
+            else None.
     """
 
     blend: sparse.csr_matrix
     targets: np.ndarray
     weights: np.ndarray
     pairs: tuple[tuple[int, int], ...]
+    selects: np.ndarray | None = None
 
     def residuals(self, pixels: np.ndarray) -> np.ndarray:
         """Pixel residuals ``C pi(x) - T`` for projected points ``(m, 2)``, shape ``(q, 2)``."""
+        if self.selects is not None:
+            return pixels[self.selects] - self.targets
         return np.asarray(self.blend @ pixels) - self.targets
 
 
-def _closest_on_polyline(queries: np.ndarray, poly: np.ndarray,
-                         candidates: int = 3) -> tuple[np.ndarray, np.ndarray]:
+def _closest_on_polyline(queries: np.ndarray, poly: np.ndarray, candidates: int = 3,
+                         tree: cKDTree | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Closest points of a polyline to queries.
 
     Only the segments next to the ``candidates`` nearest polyline vertices of each query
@@ -71,6 +79,7 @@ def _closest_on_polyline(queries: np.ndarray, poly: np.ndarray,
         queries: Points, shape ``(q, 2)``.
         poly: Polyline, shape ``(k, 2)``, ``k >= 2``.
         candidates: Nearest vertices whose adjacent segments are tested.
+        tree: KD-tree of ``poly`` (built here when None).
 
     Returns:
         ``(segment (q,), fraction (q,))``: the closest point is
@@ -78,7 +87,7 @@ def _closest_on_polyline(queries: np.ndarray, poly: np.ndarray,
     """
     n_seg = len(poly) - 1
     k = min(candidates, len(poly))
-    _, near = cKDTree(poly).query(queries, k=k)
+    _, near = (cKDTree(poly) if tree is None else tree).query(queries, k=k)
     near = near.reshape(len(queries), k)
     segs = np.clip(np.concatenate([near - 1, near], axis=1), 0, n_seg - 1)  # (q, 2k)
     a, ab = poly[segs], poly[segs + 1] - poly[segs]
@@ -100,34 +109,32 @@ def polyline_at(stroke: Stroke, s: np.ndarray) -> np.ndarray:
     return np.stack([np.interp(s, arc, stroke.points[:, d]) for d in range(2)], axis=1)
 
 
-def _symmetric_distance(curve: np.ndarray, stroke_pts: np.ndarray) -> float:
-    """Mean closest-point distance from each polyline to the other, pixels."""
-    total = 0.0
-    for q, p in ((curve, stroke_pts), (stroke_pts, curve)):
-        seg, t = _closest_on_polyline(q, p)
-        pt = p[seg] + t[:, None] * (p[seg + 1] - p[seg])
-        total += float(np.linalg.norm(pt - q, axis=1).mean())
-    return 0.5 * total
-
-
-def assignment_cost(curve: np.ndarray, stroke_pts: np.ndarray) -> float:
+def assignment_cost(curve: np.ndarray, stroke_pts: np.ndarray,
+                    trees: tuple[cKDTree | None, cKDTree | None] = (None, None)) -> float:
     """Cost of matching a stroke to a curve: shape distance plus end-point distance, pixels.
 
-    The mean symmetric closest-point distance alone prefers a long curve that happens to
-    pass near a redrawn limb (a torso outline near a raised arm); a limb is redrawn from
-    where it is attached, so the mean distance between the two curves' end points (in
-    either drawing direction) is added.
+    The shape distance is the mean distance from every point of each polyline to the
+    nearest point of the other (both densely sampled, so nearest points stand for nearest
+    segments). It alone prefers a long curve that happens to pass near a redrawn limb (a
+    torso outline near a raised arm); a limb is redrawn from where it is attached, so the
+    mean distance between the two curves' end points (in either drawing direction) is
+    added.
 
     Args:
         curve: Projected curve, ``(m, 2)`` pixels.
         stroke_pts: Stroke samples, ``(s, 2)`` pixels.
+        trees: KD-trees of ``(curve, stroke_pts)`` when already built.
     """
+    curve_tree = cKDTree(curve) if trees[0] is None else trees[0]
+    stroke_tree = cKDTree(stroke_pts) if trees[1] is None else trees[1]
+    shape = 0.5 * (float(stroke_tree.query(curve)[0].mean())
+                   + float(curve_tree.query(stroke_pts)[0].mean()))
     ends = (curve[0], curve[-1])
     same = 0.5 * (np.linalg.norm(ends[0] - stroke_pts[0]) + np.linalg.norm(ends[1]
                                                                            - stroke_pts[-1]))
     flipped = 0.5 * (np.linalg.norm(ends[0] - stroke_pts[-1]) + np.linalg.norm(
         ends[1] - stroke_pts[0]))
-    return _symmetric_distance(curve, stroke_pts) + float(min(same, flipped))
+    return shape + float(min(same, flipped))
 
 
 def assign_strokes(curves_2d: list[np.ndarray], strokes: list[Stroke],
@@ -157,10 +164,12 @@ def assign_strokes(curves_2d: list[np.ndarray], strokes: list[Stroke],
     if mode != BY_PROXIMITY:
         raise InputError(f"Unknown stroke assignment '{mode}': use ORDER or PROXIMITY.")
     cost = np.empty((len(curves_2d), len(strokes)))
+    curve_trees = [cKDTree(c) for c in curves_2d]
     for j, stroke in enumerate(strokes):
-        pts = polyline_at(stroke, np.linspace(0.0, stroke.length, 32))
+        pts = polyline_at(stroke, stroke.sample_params(ASSIGNMENT_STEP))
+        tree = cKDTree(pts)
         for i, curve in enumerate(curves_2d):
-            cost[i, j] = assignment_cost(curve, pts)
+            cost[i, j] = assignment_cost(curve, pts, (curve_trees[i], tree))
     rows, cols = linear_sum_assignment(cost)
     return tuple(sorted((int(r), int(c)) for r, c in zip(rows, cols, strict=True)))
 
@@ -246,6 +255,9 @@ def build_correspondences(pixels: np.ndarray, layout: CurveLayout, strokes: list
         targets.append(tgt)
         weights.append(w)
         start += len(tgt)
-    blend = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+    cols_all = np.concatenate(cols)
+    blend = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), cols_all)),
                               shape=(start, len(pixels)))
-    return Correspondences(blend, np.concatenate(targets), np.concatenate(weights), pairs)
+    selects = cols_all if procedure == IN_ORDER else None
+    return Correspondences(blend, np.concatenate(targets), np.concatenate(weights), pairs,
+                           selects)

@@ -29,6 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
 
 from ..camera import Camera
 from ..rotations import normalize
@@ -86,10 +87,10 @@ def projection_jacobian(camera: Camera, points: np.ndarray) -> np.ndarray:
 def _quadratic(res: np.ndarray, jac: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray,
                                                                           float]:
     """``H, g, E`` of ``sum_q w_q |res_q + jac_q dp|^2`` for ``res (q, d)``, ``jac (q, d, P)``."""
-    jw = jac * np.sqrt(w)[:, None, None]
-    flat = jw.reshape(-1, jac.shape[2])
-    rw = (res * np.sqrt(w)[:, None]).ravel()
-    return flat.T @ flat, flat.T @ rw, float(rw @ rw)
+    sw = np.sqrt(w)
+    flat = (jac * sw[:, None, None]).reshape(-1, jac.shape[2])
+    rw = (res * sw[:, None]).ravel()
+    return flat.T @ flat, rw @ flat, float(rw @ rw)
 
 
 def match_term(camera: Camera, x: np.ndarray, jac_x: np.ndarray, corr: Correspondences,
@@ -103,10 +104,13 @@ def match_term(camera: Camera, x: np.ndarray, jac_x: np.ndarray, corr: Correspon
         corr: Correspondences at the current pose.
         ppu: Pixels per world unit used to express residuals in world units.
     """
-    jpix = np.einsum("mab,mbp->map", projection_jacobian(camera, x), jac_x)
+    jpix = projection_jacobian(camera, x) @ jac_x  # (m, 2, P), batched products
     res = corr.residuals(camera.project(x)) / ppu
     m, _, p = jpix.shape
-    jrows = np.asarray(corr.blend @ jpix.reshape(m, 2 * p)).reshape(-1, 2, p) / ppu
+    if corr.selects is not None:  # rows pick single points (in-order): no blending
+        jrows = jpix[corr.selects] / ppu
+    else:
+        jrows = np.asarray(corr.blend @ jpix.reshape(m, 2 * p)).reshape(-1, 2, p) / ppu
     return _quadratic(res, jrows, corr.weights)
 
 
@@ -134,9 +138,8 @@ def regularizer_terms(camera: Camera, z: np.ndarray, jac_z: np.ndarray, coarse: 
     p = jac_z.shape[2]
     h = np.zeros((p, p))
     g = np.zeros(p)
-    view = np.broadcast_to(camera.forward, z.shape)
-    jdepth = np.einsum("kd,kdp->kp", view, jac_z)[:, None, :]
-    depth = np.sum(view * (z - z_start), axis=1)[:, None]
+    jdepth = (camera.forward @ jac_z)[:, None, :]  # (k, 1, P)
+    depth = ((z - z_start) @ camera.forward)[:, None]
     hd, gd, ed = _quadratic(depth, jdepth, lam_plane * coarse.masses / total)
     h += hd
     g += gd
@@ -146,7 +149,14 @@ def regularizer_terms(camera: Camera, z: np.ndarray, jac_z: np.ndarray, coarse: 
         diff = z[a] - z[b]
         dist = np.linalg.norm(diff, axis=1)
         u = normalize(diff)
-        jd = np.einsum("ed,edp->ep", u, jac_z[a] - jac_z[b])[:, None, :]
+        # d |z_a - z_b| = u . (J_a - J_b) dp as one sparse product over the pairs.
+        e = len(a)
+        rows = np.repeat(np.arange(e), 6)
+        cols = np.concatenate([3 * a[:, None] + np.arange(3), 3 * b[:, None]
+                               + np.arange(3)], axis=1).ravel()
+        vals = np.concatenate([u, -u], axis=1).ravel()
+        diff_op = sparse.csr_matrix((vals, (rows, cols)), shape=(e, 3 * len(z)))
+        jd = np.asarray(diff_op @ jac_z.reshape(3 * len(z), p))[:, None, :]
         w = lam_dist * coarse.pair_masses / coarse.pair_masses.sum()
         hw, gw, ew = _quadratic((dist - rest_distances)[:, None], jd, w)
         h += hw

@@ -143,8 +143,77 @@ def project_to_limits(pose: RigPose, space: ParameterSpace, limits: StepLimits) 
     return RigPose(rot, scales, pose.translations.copy())
 
 
+@dataclass(frozen=True)
+class StepBounds:
+    """The bounds of one update as dense rows ``lower <= rows dp <= upper``.
+
+    The first ``P`` rows are the trust box (the identity), then the scale rows, then the
+    IK-limit rows.
+
+    Attributes:
+        rows: ``(c, P)``; only the scale and IK rows are stored, the trust box is implied.
+        lower: ``(P + c,)``.
+        upper: ``(P + c,)``.
+        scale_bones: Bones of the scale rows, ``(s,)``.
+        limit_rows: ``(bone position in rotation_bones, axis)`` of the IK rows, ``(l, 2)``.
+    """
+
+    rows: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    scale_bones: np.ndarray
+    limit_rows: np.ndarray
+
+    def satisfied(self, dp: np.ndarray, slack: float = 1e-12) -> bool:
+        """Whether ``dp`` (``(P,)``) meets every bound (up to a relative ``slack``)."""
+        ax = np.concatenate([dp, self.rows @ dp])
+        tol = slack * np.maximum(1.0, np.abs(ax))
+        return bool(np.all(ax >= self.lower - tol) and np.all(ax <= self.upper + tol))
+
+
+def step_bounds(space: ParameterSpace, pose: RigPose, limits: StepLimits) -> StepBounds:
+    """Trust box, scale bounds and linearized IK limits of an update at ``pose``.
+
+    Args:
+        space: The free parameters.
+        pose: The current pose (inside its limits).
+        limits: Bounds.
+    """
+    n = space.n_params
+    rb, sb, tb = space.rotation_bones, space.scale_bones, space.translation_bones
+    step = np.concatenate([np.full(3 * rb.size, limits.max_rotation_step),
+                           np.full(sb.size, limits.max_scale_step),
+                           np.full(3 * tb.size, limits.max_translation_step)])
+    rows, lower, upper = [np.zeros((0, n))], [-step], [step]
+    if sb.size:
+        scale_rows = np.zeros((sb.size, n))
+        scale_rows[np.arange(sb.size), space.scale_columns] = 1.0
+        rows.append(scale_rows)
+        lower.append(limits.min_scale - pose.scales[sb])
+        upper.append(limits.max_scale - pose.scales[sb])
+    limit_rows = np.zeros((0, 2), dtype=int)
+    if limits.ik_limits is not None and rb.size:
+        lim = limits.ik_limits[rb]
+        bone, axis = np.nonzero(np.isfinite(lim[:, :, 0]))
+        if bone.size:
+            theta = log_map(pose.rotations[rb[np.unique(bone)]])
+            theta_all = np.zeros((rb.size, 3))
+            theta_all[np.unique(bone)] = theta
+            jinv = inverse_right_jacobian(theta_all[bone])  # (l, 3, 3)
+            ik_rows = np.zeros((bone.size, n))
+            ik_rows[np.arange(bone.size)[:, None], 3 * bone[:, None] + np.arange(3)] = \
+                jinv[np.arange(bone.size), axis, :]
+            rows.append(ik_rows)
+            lower.append(np.minimum(lim[bone, axis, 0] - theta_all[bone, axis], 0.0))
+            upper.append(np.maximum(lim[bone, axis, 1] - theta_all[bone, axis], 0.0))
+            limit_rows = np.stack([bone, axis], axis=1)
+    return StepBounds(np.concatenate(rows), np.concatenate(lower), np.concatenate(upper),
+                      sb.copy(), limit_rows)
+
+
 def build_step_qp(model: QuadraticModel, space: ParameterSpace, pose: RigPose,
-                  limits: StepLimits, names: tuple[str, ...]) -> StepQP:
+                  limits: StepLimits, names: tuple[str, ...],
+                  bounds: StepBounds | None = None) -> StepQP:
     """Build the bounded update problem at ``pose``.
 
     Args:
@@ -153,45 +222,41 @@ def build_step_qp(model: QuadraticModel, space: ParameterSpace, pose: RigPose,
         pose: The current pose (inside its limits).
         limits: Bounds.
         names: Bone names, for the row labels.
+        bounds: :func:`step_bounds` when already computed.
 
     Returns:
         The QP.
     """
     n = space.n_params
-    rb, sb, tb = space.rotation_bones, space.scale_bones, space.translation_bones
-    step = np.concatenate([np.full(3 * rb.size, limits.max_rotation_step),
-                           np.full(sb.size, limits.max_scale_step),
-                           np.full(3 * tb.size, limits.max_translation_step)])
-    rows = [sparse.identity(n, format="csr")]
-    lower, upper = [-step], [step]
+    b = step_bounds(space, pose, limits) if bounds is None else bounds
     labels = [f"step {space.describe(names, c)}" for c in range(n)]
-    if sb.size:
-        cols = space.scale_columns
-        rows.append(sparse.csr_matrix((np.ones(sb.size), (np.arange(sb.size), cols)),
-                                      shape=(sb.size, n)))
-        lower.append(limits.min_scale - pose.scales[sb])
-        upper.append(limits.max_scale - pose.scales[sb])
-        labels += [f"scale {names[b]}" for b in sb]
-    if limits.ik_limits is not None and rb.size:
-        lim = limits.ik_limits[rb]
-        theta = log_map(pose.rotations[rb])
-        jinv = inverse_right_jacobian(theta)
-        bone, axis = np.nonzero(np.isfinite(lim[:, :, 0]))
-        if bone.size:
-            data = jinv[bone, axis, :].ravel()
-            rr = np.repeat(np.arange(bone.size), 3)
-            cc = (3 * bone[:, None] + np.arange(3)[None]).ravel()
-            rows.append(sparse.csr_matrix((data, (rr, cc)), shape=(bone.size, n)))
-            lo = lim[bone, axis, 0] - theta[bone, axis]
-            hi = lim[bone, axis, 1] - theta[bone, axis]
-            lower.append(np.minimum(lo, 0.0))
-            upper.append(np.maximum(hi, 0.0))
-            labels += [f"limit {names[rb[b]]} {'xyz'[a]}" for b, a in zip(bone, axis,
-                                                                            strict=True)]
+    labels += [f"scale {names[j]}" for j in b.scale_bones]
+    labels += [f"limit {names[space.rotation_bones[j]]} {'xyz'[a]}" for j, a in b.limit_rows]
     hess = 2.0 * (model.hessian + parameter_ridge(model.hessian))
-    return StepQP(sparse.csc_matrix(np.triu(hess)), 2.0 * model.gradient,
-                  sparse.vstack(rows, format="csc"), np.concatenate(lower),
-                  np.concatenate(upper), tuple(labels))
+    a = sparse.vstack([sparse.identity(n, format="csr"), sparse.csr_matrix(b.rows)],
+                      format="csc")
+    return StepQP(sparse.csc_matrix(np.triu(hess)), 2.0 * model.gradient, a, b.lower,
+                  b.upper, tuple(labels))
+
+
+def solve_bounded_step(model: QuadraticModel, space: ParameterSpace, pose: RigPose,
+                       limits: StepLimits, names: tuple[str, ...]) -> StepSolution:
+    """The bounded update: the Gauss-Newton step when it meets every bound, else the QP.
+
+    The unconstrained minimizer (a Cholesky solve of the dense Hessian) is tried first;
+    the sparse QP of :func:`build_step_qp` is only built and handed to OSQP when that step
+    leaves the trust box, the scale bounds or the IK limits.
+
+    Raises:
+        SolverError: OSQP did not solve the problem.
+    """
+    t0 = time.perf_counter()
+    bounds = step_bounds(space, pose, limits)
+    hess = model.hessian + parameter_ridge(model.hessian)
+    x = _spd_solve(hess, -model.gradient)
+    if x is not None and np.all(np.isfinite(x)) and bounds.satisfied(x):
+        return StepSolution(x, 0, "unconstrained", 0.0, 0.0, (), time.perf_counter() - t0)
+    return solve_step_qp(build_step_qp(model, space, pose, limits, names, bounds))
 
 
 def _active(qp: StepQP, x: np.ndarray) -> tuple[str, ...]:

@@ -20,8 +20,13 @@ subtree of ``b`` turns about the posed joint ``h_b`` around the world axis ``a =
     dx_v / d tau_b    = Wsub_vb R_b
 
 where ``Ysub_vb`` sums ``G_j Y_vj`` and ``Wsub_vb`` the weights over the bones ``j`` in the
-subtree of ``b``. Bones that do not inherit their parent's rotation are treated as rigid
-descendants in the Jacobian (use the black-box path for such rigs).
+subtree of ``b``. A bone ``c`` below ``b`` that does not inherit rotation keeps its
+orientation when ``b`` turns: only its head moves, so ``c`` and its subtree translate by the
+motion of ``h_c``. With ``Rsub`` summing over the bones reached from ``b`` through inheriting
+bones only, and ``c`` running over the topmost non-inheriting bones below ``b``::
+
+    rel_vb = Rsub_vb - Wsub_vb h_b + sum_c Wsub_vc h_c
+    dx_v / d omega_bk = a x rel_vb,        dx_v / d s_b = rel_vb / s_b
 """
 
 from __future__ import annotations
@@ -54,11 +59,23 @@ def rigid_inverse(m: np.ndarray) -> np.ndarray:
     return out
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a x b`` with broadcasting over leading axes (faster than ``np.cross`` here)."""
-    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
-                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+def _skew_columns(frames: np.ndarray) -> np.ndarray:
+    """Cross-product matrices of every frame column, laid out for :func:`point_jacobian`.
+
+    Args:
+        frames: Rotation frames ``F``, shape ``(r, 3, 3)``; column ``k`` is the world axis
+            ``a_k`` of local axis ``k``.
+
+    Returns:
+        ``S``, shape ``(r, 3, 9)``, with ``S[r, e, 3 d + k] = [a_k]_x[d, e]``, so that
+        ``(v @ S[r])[3 d + k] = (a_k x v)_d``.
+    """
+    a = np.swapaxes(frames, 1, 2)  # (r, k, xyz)
+    zero = np.zeros(a.shape[:2])
+    skew = np.stack([np.stack([zero, -a[..., 2], a[..., 1]], -1),
+                     np.stack([a[..., 2], zero, -a[..., 0]], -1),
+                     np.stack([-a[..., 1], a[..., 0], zero], -1)], -2)  # (r, k, d, e)
+    return np.transpose(skew, (0, 3, 2, 1)).reshape(len(frames), 3, 9)
 
 
 def descendant_matrix(skeleton: Skeleton) -> np.ndarray:
@@ -72,7 +89,25 @@ def descendant_matrix(skeleton: Skeleton) -> np.ndarray:
     return d
 
 
+def inheritance_matrices(skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(T, K)`` of :class:`RigTables` (``K`` None when every bone inherits rotation)."""
+    n = skeleton.n_bones
+    inherit = np.asarray(skeleton.inherit_rotation, dtype=bool)
+    turning = np.eye(n)
+    carried = np.zeros((n, n))
+    for j in range(n):  # parents first
+        p = skeleton.parents[j]
+        if p < 0:
+            continue
+        if inherit[j]:
+            turning[j] += turning[p]
+        else:
+            carried[j] = turning[p]
+    return turning, (carried if np.any(~inherit[skeleton.parents >= 0]) else None)
+
+
 def _levels(parents: np.ndarray) -> list[np.ndarray]:
+    """Bone indices per depth in the tree (roots first), for level-wise kinematics."""
     depth = np.zeros(len(parents), dtype=int)
     for i, p in enumerate(parents):
         depth[i] = 0 if p < 0 else depth[p] + 1
@@ -107,19 +142,27 @@ class RigTables:
         rest_inv: Their inverses, ``(n, 4, 4)``.
         levels: Bone indices per tree depth.
         descendants: :func:`descendant_matrix`, ``(n, n)``.
+        turning: ``T[j, b] = 1`` when bone ``j`` turns with ``b`` (``j`` is ``b`` or below
+            it with only inheriting bones on the way), ``(n, n)``.
+        carried: ``K[c, b] = 1`` when ``c`` is a topmost non-inheriting bone below ``b``
+            (it translates with ``b`` without turning), ``(n, n)``; None when every bone
+            inherits rotation.
     """
 
     rest: np.ndarray
     rest_inv: np.ndarray
     levels: tuple[np.ndarray, ...]
     descendants: np.ndarray
+    turning: np.ndarray
+    carried: np.ndarray | None
 
     @classmethod
     def of(cls, skeleton: Skeleton) -> RigTables:
         """Compute the tables of ``skeleton``."""
         rest = rest_matrices(skeleton)
+        turning, carried = inheritance_matrices(skeleton)
         return cls(rest, rigid_inverse(rest), tuple(_levels(skeleton.parents)),
-                   descendant_matrix(skeleton))
+                   descendant_matrix(skeleton), turning, carried)
 
 
 def pose_bones(skeleton: Skeleton, pose: RigPose, tables: RigTables | None = None
@@ -209,10 +252,16 @@ class LbsRig:
     abstraction_rest: np.ndarray
     representative_rest: np.ndarray
     tables: RigTables = field(init=False, repr=False, compare=False)
+    subtree_weights: tuple[np.ndarray, np.ndarray] = field(init=False, repr=False,
+                                                           compare=False)
 
     def __post_init__(self) -> None:
-        """Precompute the skeleton's tables."""
-        object.__setattr__(self, "tables", RigTables.of(self.skeleton))
+        """Precompute the skeleton's tables and the points' subtree weights ``Wsub``."""
+        tables = RigTables.of(self.skeleton)
+        object.__setattr__(self, "tables", tables)
+        object.__setattr__(self, "subtree_weights", tuple(
+            np.ascontiguousarray(y[:, :, 3]) @ tables.descendants
+            for y in (self.abstraction_rest, self.representative_rest)))
 
     def with_space(self, space: ParameterSpace) -> LbsRig:
         """The same rig with other free parameters (e.g. the bones a drawing constrains)."""
@@ -230,16 +279,17 @@ class LbsRig:
             ``(x (m, 3), z (k, 3), J_x (m, 3, P), J_z (k, 3, P))``.
         """
         posed = pose_bones(self.skeleton, pose, self.tables)
-        dmat = self.tables.descendants
         out = []
-        for rest in (self.abstraction_rest, self.representative_rest):
+        for rest, wsub in zip((self.abstraction_rest, self.representative_rest),
+                              self.subtree_weights, strict=True):
             out.append(skin(posed, rest))
-            out.append(point_jacobian(posed, rest, self.space, pose, dmat))
+            out.append(point_jacobian(posed, rest, self.space, pose, self.tables, wsub))
         return out[0], out[2], out[1], out[3]
 
 
 def point_jacobian(posed: PosedBones, weighted_rest: np.ndarray, space: ParameterSpace,
-                   pose: RigPose, dmat: np.ndarray) -> np.ndarray:
+                   pose: RigPose, tables: RigTables,
+                   subtree_weights: np.ndarray | None = None) -> np.ndarray:
     """Analytic Jacobian of skinned points with respect to the free parameters.
 
     Args:
@@ -247,25 +297,33 @@ def point_jacobian(posed: PosedBones, weighted_rest: np.ndarray, space: Paramete
         weighted_rest: ``Y``, shape ``(m, n, 4)``.
         space: The free parameters.
         pose: The current pose (for the scales).
-        dmat: :func:`descendant_matrix` of the skeleton, ``(n, n)``.
+        tables: The skeleton's :class:`RigTables`.
+        subtree_weights: ``Wsub = W D``, shape ``(m, n)`` (pose-independent; computed here
+            when None).
 
     Returns:
-        ``J``, shape ``(m, 3, P)``, world units per radian / per unit scale / per unit.
+        ``J``, shape ``(m, 3, P)``, world units per radian / per unit scale / per unit;
+        columns in the order of ``space``.
     """
-    m = len(weighted_rest)
-    per_bone = np.matmul(posed.skinning[None, :, :3, :], weighted_rest[..., None])[..., 0]
-    wsub = weighted_rest[:, :, 3] @ dmat
-    rel = np.swapaxes(np.swapaxes(per_bone, 1, 2) @ dmat, 1, 2)
-    rel -= wsub[:, :, None] * posed.heads[None]
+    m, n = weighted_rest.shape[:2]
+    # Bone-major layout (n, m, 3) so that every product is one BLAS call.
+    per_bone = np.swapaxes(weighted_rest, 0, 1) @ np.swapaxes(posed.skinning[:, :3, :], 1, 2)
+    wsub = (np.ascontiguousarray(weighted_rest[:, :, 3]) @ tables.descendants
+            if subtree_weights is None else subtree_weights)  # (m, n)
+    at_heads = wsub.T[:, :, None] * posed.heads[:, None, :]  # Wsub_vb h_b, (n, m, 3)
+    rel = (tables.turning.T @ per_bone.reshape(n, m * 3)).reshape(n, m, 3) - at_heads
+    if tables.carried is not None:  # non-inheriting bones below b translate with h_c
+        rel += (tables.carried.T @ at_heads.reshape(n, m * 3)).reshape(n, m, 3)
     blocks = []
     rb = space.rotation_bones
     if rb.size:
-        axes = np.swapaxes(posed.frames[rb], 1, 2)  # (r, k, xyz): world axis F e_k
-        jr = _cross(axes[None, :, :, :], rel[:, rb, None, :])  # (m, r, k, xyz)
-        blocks.append(np.transpose(jr, (0, 3, 1, 2)).reshape(m, 3, -1))
+        # a x rel = [a]_x rel: one batched product per rotating bone, (r, m, 3) @ (r, 3, 9).
+        skew = _skew_columns(posed.frames[rb])  # (r, e, d * 3 + k)
+        jr = np.transpose((rel[rb] @ skew).reshape(rb.size, m, 3, 3), (1, 2, 0, 3))
+        blocks.append(jr.reshape(m, 3, 3 * rb.size))
     sb = space.scale_bones
     if sb.size:
-        blocks.append(np.swapaxes(rel[:, sb] / pose.scales[sb][None, :, None], 1, 2))
+        blocks.append(np.transpose(rel[sb], (1, 2, 0)) / pose.scales[sb][None, None, :])
     tb = space.translation_bones
     if tb.size:
         rot = posed.world[tb, :3, :3] / posed.scales[tb, None, None]
@@ -274,4 +332,4 @@ def point_jacobian(posed: PosedBones, weighted_rest: np.ndarray, space: Paramete
         blocks.append(np.transpose(jt, (0, 2, 1, 3)).reshape(m, 3, -1))
     if not blocks:
         return np.zeros((m, 3, 0))
-    return np.concatenate(blocks, axis=2)
+    return blocks[0] if len(blocks) == 1 else np.concatenate(blocks, axis=2)

@@ -51,7 +51,7 @@ from .energies import (
 )
 from .inputs import MOVE_DRAWN, end_on_names, prepare_phase
 from .parameters import ParameterSpace, RigPose
-from .qp import StepLimits, build_step_qp, project_to_limits, solve_step_qp, solve_step_unbounded
+from .qp import StepLimits, project_to_limits, solve_bounded_step, solve_step_unbounded
 
 
 class RigModel(Protocol):
@@ -108,7 +108,7 @@ class SolveOptions:
     bounded: bool = True
     limits: StepLimits = field(default_factory=StepLimits)
     line_search_steps: int = 8
-    damping_decay: float = 0.3
+    damping_decay: float = 0.1
     min_damping: float = 1e-4
     moved_bones: str = MOVE_DRAWN
 
@@ -294,7 +294,7 @@ def _solve_phase(problem: AbstractionProblem, opt: SolveOptions) -> SolveResult:
         model = QuadraticModel(hm + hr + hp, gm + gr + gp, {"E_match": em, "W_pose": ep, **er})
         energy = model.energy
         if opt.bounded:
-            sol = solve_step_qp(build_step_qp(model, space, pose, opt.limits, problem.names))
+            sol = solve_bounded_step(model, space, pose, opt.limits, problem.names)
             dp, active = sol.dp, sol.active
             qp_iters += sol.iterations
         else:
