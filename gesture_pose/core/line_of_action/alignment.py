@@ -36,6 +36,46 @@ class ViewOps:
     forward: np.ndarray
     depth_row: np.ndarray
 
+    def __post_init__(self) -> None:
+        """Keep Python-float copies for the single-point paths.
+
+        numpy's per-call overhead would dominate one-point projections and rays.
+        """
+        object.__setattr__(self, "_m", [self.full[i].tolist() for i in (0, 1, 3)])
+        object.__setattr__(self, "_inv", self.inverse.tolist())
+        object.__setattr__(self, "_fwd", self.forward.tolist())
+        object.__setattr__(self, "_dr", self.depth_row.tolist())
+        object.__setattr__(self, "_size", self.size.tolist())
+
+    def project_point(self, x: float, y: float, z: float) -> tuple[float, float]:
+        """Pixel of one world point given as floats."""
+        (a0, a1, a2, a3), (b0, b1, b2, b3), (c0, c1, c2, c3) = self._m
+        w = c0 * x + c1 * y + c2 * z + c3
+        width, height = self._size
+        return ((a0 * x + a1 * y + a2 * z + a3) / w + 1.0) * 0.5 * width, \
+            ((b0 * x + b1 * y + b2 * z + b3) / w + 1.0) * 0.5 * height
+
+    def depth_point(self, x: float, y: float, z: float) -> float:
+        """View depth of one world point given as floats."""
+        r0, r1, r2, r3 = self._dr
+        return -(r0 * x + r1 * y + r2 * z + r3)
+
+    def ray_point(self, px: float, py: float) -> tuple[tuple[float, float, float],
+                                                       tuple[float, float, float]]:
+        """World ray (origin on the near plane, unit direction) through one pixel."""
+        width, height = self._size
+        u, v = px / width * 2.0 - 1.0, py / height * 2.0 - 1.0
+        near, far = [], []
+        for a, b, c, d in self._inv:
+            base = a * u + b * v + d
+            near.append(base - c)
+            far.append(base)
+        o = (near[0] / near[3], near[1] / near[3], near[2] / near[3])
+        f = (far[0] / far[3], far[1] / far[3], far[2] / far[3])
+        dx, dy, dz = f[0] - o[0], f[1] - o[1], f[2] - o[2]
+        n = math.sqrt(dx * dx + dy * dy + dz * dz)
+        return o, (dx / n, dy / n, dz / n)
+
     @classmethod
     def from_camera(cls, camera: Camera) -> ViewOps:
         """Precompute the matrices of ``camera``."""
@@ -87,6 +127,16 @@ class Placement:
     skipped: bool
 
 
+def _circle(view: ViewOps, parent: tuple[float, float, float], length: float,
+            plane_depth: float) -> tuple[tuple[float, float, float], float]:
+    """:func:`circle_of` on floats."""
+    h = plane_depth - view.depth_point(*parent)
+    h = max(-length, min(length, h))
+    fx, fy, fz = view._fwd
+    centre = (parent[0] + h * fx, parent[1] + h * fy, parent[2] + h * fz)
+    return centre, math.sqrt(max(length * length - h * h, 0.0))
+
+
 def circle_of(
     view: ViewOps, parent: np.ndarray, length: float, plane_depth: float
 ) -> tuple[np.ndarray, float]:
@@ -102,11 +152,9 @@ def circle_of(
         ``(centre, radius)``; the radius is 0 when the plane misses the sphere, and the
         centre is then the sphere point nearest the plane.
     """
-    r = view.depth_row
-    h = plane_depth + float(r[0] * parent[0] + r[1] * parent[1] + r[2] * parent[2] + r[3])
-    h = max(-length, min(length, h))
-    centre = parent + h * view.forward
-    return centre, math.sqrt(max(length * length - h * h, 0.0))
+    centre, radius = _circle(view, tuple(np.asarray(parent, float).tolist()), length,
+                             plane_depth)
+    return np.array(centre), radius
 
 
 @dataclass(frozen=True)
@@ -158,23 +206,28 @@ def stroke_circle_crossing(
         The arc length of the crossing (linearly interpolated), or None if the stroke
         does not cross the circle after ``s_from``.
     """
-    centre, radius = circle_of(view, parent, length, plane_depth)
+    centre, radius = _circle(view, tuple(np.asarray(parent, float).tolist()), length,
+                             plane_depth)
     params = rays.params
-    i0 = int(np.searchsorted(params, s_from))
-    i1 = int(np.searchsorted(params, s_near + (s_near - s_from) + 4.0)) + 1
+    step = float(params[1] - params[0])
+    i0 = max(math.ceil(s_from / step - 1e-9), 0)
+    i1 = min(math.floor((2.0 * s_near - s_from + 4.0) / step) + 2, len(params))
     if i1 - i0 < 2:
         return None
     t = (plane_depth - rays.origin_depth[i0:i1]) / rays.rate[i0:i1]
-    rel = rays.origins[i0:i1] - centre + t[:, None] * rays.directions[i0:i1]
+    rel = rays.origins[i0:i1] - np.array(centre) + t[:, None] * rays.directions[i0:i1]
     f = np.sqrt(np.einsum("ij,ij->i", rel, rel)) - radius
-    cross = np.flatnonzero(np.sign(f[:-1]) * np.sign(f[1:]) <= 0)
+    inside = f < 0.0
+    cross = np.flatnonzero(inside[:-1] != inside[1:])
     if cross.size == 0:
         return None
-    s0, s1 = params[i0:][cross], params[i0:][cross + 1]
-    f0, f1 = f[cross], f[cross + 1]
-    w = np.where(np.abs(f0 - f1) > 1e-15, f0 / np.where(f0 == f1, 1.0, f0 - f1), 0.0)
-    roots = s0 + w * (s1 - s0)
-    return float(roots[int(np.argmin(np.abs(roots - s_near)))])
+    best, best_gap = None, math.inf
+    for k in cross.tolist():  # a stroke crosses a circle a handful of times at most
+        f0, f1 = float(f[k]), float(f[k + 1])
+        root = float(params[i0 + k]) + step * f0 / (f0 - f1)
+        if abs(root - s_near) < best_gap:
+            best, best_gap = root, abs(root - s_near)
+    return best
 
 
 def place_joint(
@@ -196,18 +249,20 @@ def place_joint(
     Returns:
         The placement.
     """
-    centre, radius = circle_of(view, parent, length, plane_depth)
+    (cx, cy, cz), radius = _circle(view, tuple(np.asarray(parent, float).tolist()), length,
+                                   plane_depth)
     if radius < min_radius_ratio * length:
-        return Placement(current.copy(), radius, True)
-    origin, direction = view.ray(np.asarray(target_px, float))
-    rate = float(direction @ view.forward)
-    t = (plane_depth - float(view.depth(origin))) / rate
-    hit = origin + t * direction
-    radial = hit - centre
-    norm = math.sqrt(float(radial @ radial))
+        return Placement(np.array(current, float), radius, True)
+    tx, ty = np.asarray(target_px, float).tolist()
+    (ox, oy, oz), (dx, dy, dz) = view.ray_point(tx, ty)
+    fx, fy, fz = view._fwd
+    t = (plane_depth - view.depth_point(ox, oy, oz)) / (dx * fx + dy * fy + dz * fz)
+    rx, ry, rz = ox + t * dx - cx, oy + t * dy - cy, oz + t * dz - cz
+    norm = math.sqrt(rx * rx + ry * ry + rz * rz)
     if norm < 1e-12 * max(length, 1.0):
-        return Placement(current.copy(), radius, False)
-    return Placement(centre + radial * (radius / norm), radius, False)
+        return Placement(np.array(current, float), radius, False)
+    k = radius / norm
+    return Placement(np.array([cx + rx * k, cy + ry * k, cz + rz * k]), radius, False)
 
 
 def joint_plane_depth(
@@ -234,8 +289,9 @@ def joint_plane_depth(
         The plane's view depth.
     """
     if plane_posing:
-        return float(view.depth(parent))
-    _, radius = circle_of(view, parent, length, original_depth)
+        return view.depth_point(*np.asarray(parent, float).tolist())
+    _, radius = _circle(view, tuple(np.asarray(parent, float).tolist()), length,
+                        float(original_depth))
     if radius >= min_radius_ratio * length:
         return float(original_depth)
-    return float(view.depth(current))
+    return view.depth_point(*np.asarray(current, float).tolist())

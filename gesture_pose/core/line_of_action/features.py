@@ -9,6 +9,7 @@ the arc-length position to the stroke point nearest where the joint actually pro
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,9 +50,10 @@ class SampledStroke:
         return self.points[i] * (1.0 - f) + self.points[i + 1] * f
 
     def window(self, lo: float, hi: float) -> slice:
-        """Sample indices whose arc lengths lie in ``[lo, hi]``."""
-        i0 = int(np.searchsorted(self.params, lo, side="left"))
-        i1 = int(np.searchsorted(self.params, hi, side="right"))
+        """Sample indices whose arc lengths lie in ``[lo, hi]`` (samples are evenly spaced)."""
+        last = len(self.params)
+        i0 = min(max(math.ceil(lo / self.step - 1e-9), 0), last - 1)
+        i1 = min(max(math.floor(hi / self.step + 1e-9) + 1, 0), last)
         return slice(i0, max(i1, i0 + 1))
 
 
@@ -102,5 +104,5 @@ def renormalize_param(
         The renormalized arc length.
     """
     idx = sampled.window(around - half_window, around + half_window)
-    d = np.sum((sampled.points[idx] - landed) ** 2, axis=1)
-    return float(sampled.params[idx][int(np.argmin(d))])
+    rel = sampled.points[idx] - landed
+    return float(sampled.params[idx.start + int(np.argmin(np.einsum("ij,ij->i", rel, rel)))])

@@ -172,11 +172,10 @@ def aimed_rotation(cs: ChainState, bone: int, seg_end: np.ndarray,
     new_dir = _unit(new_end - head)
     angle = math.acos(max(-1.0, min(1.0, float(cur_dir @ new_dir))))
     target_local = carry.T @ new_dir
-    seg_local = frame.T @ cur_dir
-    if seg_local @ _Y > 1.0 - 1e-9:
+    if float(frame[:, 1] @ cur_dir) > 1.0 - 1e-9:  # the segment runs along the bone's y
         swing, _ = rotation_between3(_Y, target_local)
         return swing @ twist_about_y(q), angle
-    delta, _ = rotation_between3(q @ seg_local, target_local)
+    delta, _ = rotation_between3(q @ (frame.T @ cur_dir), target_local)
     return delta @ q, angle
 
 
@@ -261,13 +260,18 @@ class _Walker:
         if np.linalg.norm(right) < 1e-6:
             right = np.cross(view.forward, [0.0, 1.0, 0.0])
         self.right = right / np.linalg.norm(right)
+        self.right_floats = self.right.tolist()
 
     def projected_length(self, start: np.ndarray, end: np.ndarray) -> float:
         """Pixels the segment covers now, or would cover orthogonal to the view (plane)."""
+        sx, sy, sz = start.tolist()
+        ex, ey, ez = end.tolist()
         if self.plane:
-            dx, dy, dz = (end - start).tolist()
-            end = start + self.right * math.sqrt(dx * dx + dy * dy + dz * dz)
-        (x0, y0), (x1, y1) = self.view.project(np.array([start, end])).tolist()
+            length = math.sqrt((ex - sx) ** 2 + (ey - sy) ** 2 + (ez - sz) ** 2)
+            rx, ry, rz = self.right_floats
+            ex, ey, ez = sx + rx * length, sy + ry * length, sz + rz * length
+        x0, y0 = self.view.project_point(sx, sy, sz)
+        x1, y1 = self.view.project_point(ex, ey, ez)
         return math.hypot(x1 - x0, y1 - y0)
 
     def target(self, s_prev: float, lp: float,
@@ -381,7 +385,7 @@ def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: Cha
         if not trial.depth_kept:
             depth_moved.append(bone)
         new_end = cs.heads[bone] + cs.frames[bone] @ offset_local
-        land = view.project(new_end)
+        land = np.array(view.project_point(*new_end.tolist()))
         s = trial.param
         if options.tracking is Tracking.POSITION and options.feature_extraction:
             s = renormalize_param(sampled, land, s, max(trial.projected / 3.0,
