@@ -94,6 +94,8 @@ class ChainState:
         tails: World tails, shape ``(n, 3)``.
         frames: World frames, shape ``(n, 3, 3)``.
         lengths: Bone lengths, shape ``(n,)``.
+        offsets: Each head in its parent's posed frame, ``R_p^T (r_i - r_p + R_i t_i)``
+            (world point for roots), shape ``(n, 3)``.
     """
 
     skeleton: Skeleton
@@ -103,19 +105,22 @@ class ChainState:
     tails: np.ndarray
     frames: np.ndarray
     lengths: np.ndarray
+    offsets: np.ndarray
 
     @classmethod
     def from_state(cls, skeleton: Skeleton, rotations: np.ndarray, translations: np.ndarray,
                    state: PoseState) -> ChainState:
         """Copy a pose and its forward kinematics."""
+        rel_rot, rel_off = skeleton.rest_relative
+        offsets = rel_off + np.einsum("nij,nj->ni", rel_rot, translations)
         return cls(skeleton, rotations.copy(), translations, state.heads.copy(),
-                   state.tails.copy(), state.frames.copy(), skeleton.lengths)
+                   state.tails.copy(), state.frames.copy(), skeleton.lengths, offsets)
 
     def copy(self) -> ChainState:
         """An independent copy (for dry runs)."""
         return ChainState(self.skeleton, self.rotations.copy(), self.translations,
                           self.heads.copy(), self.tails.copy(), self.frames.copy(),
-                          self.lengths)
+                          self.lengths, self.offsets)
 
     def carry(self, bone: int) -> np.ndarray:
         """``C`` with ``F = C Q`` for ``bone`` (its parent's frame must be current)."""
@@ -128,10 +133,8 @@ class ChainState:
 
     def refresh_head(self, bone: int) -> None:
         """Recompute ``bone``'s world head from its (current) parent."""
-        sk = self.skeleton
-        rel_rot, rel_off = sk.rest_relative
-        off = rel_off[bone] + rel_rot[bone] @ self.translations[bone]
-        p = sk.parents[bone]
+        off = self.offsets[bone]
+        p = self.skeleton.parents[bone]
         self.heads[bone] = off if p < 0 else self.heads[p] + self.frames[p] @ off
 
     def refresh(self, bone: int) -> None:
