@@ -16,9 +16,10 @@ Two cues decide which part is in front:
   contour of an adjacent bone (the stem and top of a T), the stem bone turns away: its far
   joint is deeper than the joint it shares with the top bone.
 
-Junctions are found from the contour pieces matched to bones (the embedding's
-correspondences): a piece end that is also a contour end and lies on the interior of
-another bone's piece. The embedding's own occlusions are used as well.
+Junctions are found on the drawing's contours (a contour end that stops on another
+contour's interior, across it) and attributed to bones through the embedding's
+correspondences (the bones whose matched contour samples lie there). The embedding's own
+occlusions are used as well.
 """
 
 from __future__ import annotations
@@ -93,46 +94,85 @@ def occlusion_constraint(embedding: Embedding2D, occ: Occlusion, scale: float,
                               h_front + h_back)
 
 
-def _ends_of_contours(embedding: Embedding2D) -> np.ndarray:
-    """First and last samples of every contour, shape ``(2c, 2)``."""
-    ends = [c[[0, -1]] for c in embedding.contours if len(c)]
-    return np.concatenate(ends) if ends else np.zeros((0, 2))
-
-
-def detect_junctions(embedding: Embedding2D, tolerance: float | None = None
-                     ) -> list[tuple[int, int, np.ndarray]]:
-    """T-junctions between contour pieces of different bones.
-
-    A junction is a piece end of bone S (the stem) that ends its contour and lies within
-    ``tolerance`` of the interior of a piece of bone T (the top), farther than
-    ``2 * tolerance`` from that piece's ends.
-
-    Args:
-        embedding: The 2D embedding with its contour-to-bone correspondences.
-        tolerance: Distance in pixels; defaults to 1.5 resampling steps (3 px if unknown).
+def _closest_on_polyline(poly: np.ndarray, x: np.ndarray) -> tuple[float, np.ndarray, float,
+                                                                    np.ndarray]:
+    """Closest point of a polyline ``(k, 2)`` to ``x``.
 
     Returns:
-        ``(stem_bone, top_bone, point)`` triples, point in pixels ``(2,)``.
+        ``(distance, point (2,), arc length there, unit tangent there (2,))``.
     """
-    tol = tolerance if tolerance is not None else (1.5 * embedding.epsilon
-                                                   if embedding.epsilon > 0 else 3.0)
-    contour_ends = _ends_of_contours(embedding)
-    pieces = [(b, np.asarray(p, float)) for b, ps in enumerate(embedding.bone_segments)
-              for p in ps if len(p) >= 2]
+    a, b = poly[:-1], poly[1:]
+    ab = b - a
+    t = np.clip(np.sum((x - a) * ab, axis=1) / np.maximum(np.sum(ab * ab, axis=1), 1e-12),
+                0.0, 1.0)
+    pts = a + t[:, None] * ab
+    d = np.linalg.norm(pts - x, axis=1)
+    i = int(np.argmin(d))
+    seg = np.linalg.norm(ab, axis=1)
+    arc = float(np.sum(seg[:i]) + t[i] * seg[i])
+    return float(d[i]), pts[i], arc, ab[i] / max(seg[i], 1e-12)
+
+
+def _bone_labels(embedding: Embedding2D) -> tuple[np.ndarray, np.ndarray]:
+    """Every contour sample matched to a bone, ``(N, 2)``, and its solving bone, ``(N,)``."""
+    pts = [np.asarray(p, float) for ps in embedding.bone_segments for p in ps if len(p)]
+    lab = [np.full(len(p), b) for b, ps in enumerate(embedding.bone_segments)
+           for p in ps if len(p)]
+    if not pts:
+        return np.zeros((0, 2)), np.zeros(0, int)
+    return np.concatenate(pts), np.concatenate(lab)
+
+
+def _bone_near(points: np.ndarray, labels: np.ndarray, x: np.ndarray, reach: float) -> int:
+    """The bone whose matched contour samples come nearest ``x`` (within ``reach``), or -1."""
+    if not len(points):
+        return -1
+    d = np.linalg.norm(points - x, axis=1)
+    i = int(np.argmin(d))
+    return int(labels[i]) if d[i] <= reach else -1
+
+
+def detect_junctions(embedding: Embedding2D, tolerance: float | None = None,
+                     min_angle: float = np.radians(30.0)) -> list[tuple[int, int, np.ndarray]]:
+    """T-junctions of the drawing's contours, attributed to bones.
+
+    A contour end is the stem of a T when it stops within ``tolerance`` of another
+    contour's interior (more than ``tolerance`` of arc length from that contour's ends) and
+    meets it at more than ``min_angle``. The stem and top bones are those whose matched
+    contour samples (the embedding's correspondences) lie nearest the stem's last sample
+    but one and the junction point, within one resampling step.
+
+    Args:
+        embedding: The 2D embedding with its contours and contour-to-bone correspondences.
+        tolerance: Distance in pixels; defaults to 0.75 resampling steps (2 px if unknown).
+        min_angle: Smallest angle between the stem and the top contour, radians.
+
+    Returns:
+        ``(stem_bone, top_bone, point)`` triples (one per bone pair), point in pixels.
+    """
+    eps = embedding.epsilon if embedding.epsilon > 0 else 2.0
+    tol = tolerance if tolerance is not None else 0.75 * eps
+    points, labels = _bone_labels(embedding)
+    contours = [np.asarray(c, float) for c in embedding.contours if len(c) >= 2]
     found: dict[tuple[int, int], np.ndarray] = {}
-    for stem, piece in pieces:
-        for end in piece[[0, -1]]:
-            if contour_ends.size and np.min(np.linalg.norm(contour_ends - end, axis=1)) > tol:
-                continue
-            for top, other in pieces:
-                if top == stem:
+    for ci, c in enumerate(contours):
+        for end, prev in ((c[0], c[1]), (c[-1], c[-2])):
+            tangent = (end - prev) / max(float(np.linalg.norm(end - prev)), 1e-12)
+            for cj, other in enumerate(contours):
+                if cj == ci:
                     continue
-                d = np.linalg.norm(other - end, axis=1)
-                k = int(np.argmin(d))
-                arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(other, axis=0), axis=1))]
-                interior = min(arc[k], arc[-1] - arc[k]) > 2.0 * tol
-                if d[k] <= tol and interior and (stem, top) not in found:
-                    found[(stem, top)] = other[k].copy()
+                d, q, arc, top_tangent = _closest_on_polyline(other, end)
+                length = float(np.sum(np.linalg.norm(np.diff(other, axis=0), axis=1)))
+                if d > tol or min(arc, length - arc) <= tol:
+                    continue
+                if abs(float(tangent @ top_tangent)) > np.cos(min_angle):
+                    continue
+                # The stem's end also lies on the top's outline: attribute the stem one
+                # sample back along its own contour.
+                stem = _bone_near(points, labels, prev, eps)
+                top = _bone_near(points, labels, q, eps)
+                if stem >= 0 and top >= 0 and stem != top and (stem, top) not in found:
+                    found[(stem, top)] = q
     return [(s, t, p) for (s, t), p in found.items()]
 
 
@@ -144,15 +184,41 @@ def _radius_at(embedding: Embedding2D, bone: int, q: np.ndarray) -> float:
     return float((1.0 - u) * embedding.joint_radius[h] + u * embedding.joint_radius[t])
 
 
+def _bone_distance(parent: np.ndarray) -> np.ndarray:
+    """Number of parent-child steps between every pair of solving bones, ``(m, m)``."""
+    m = len(parent)
+    up = []
+    for k in range(m):
+        path = [k]
+        while parent[path[-1]] >= 0:
+            path.append(int(parent[path[-1]]))
+        up.append({b: i for i, b in enumerate(path)})
+    dist = np.full((m, m), m, dtype=int)
+    for i in range(m):
+        for j in range(m):
+            common = [up[i][c] + up[j][c] for c in up[j] if c in up[i]]
+            if common:
+                dist[i, j] = min(common)
+    return dist
+
+
 def ordering_constraints(embedding: Embedding2D, scale: float, names: tuple[str, ...] = (),
-                         tolerance: float | None = None) -> list[OrderingConstraint]:
+                         tolerance: float | None = None, min_parts: int = 3
+                         ) -> list[OrderingConstraint]:
     """All depth-order constraints the drawing implies.
+
+    A junction between adjacent bones (sharing a joint) is an intra-part T-junction; one
+    between bones at least ``min_parts`` parent-child steps apart is an inter-part
+    occlusion (Eq. 8). Junctions between nearby bones (a thigh and the pelvis, a shoulder
+    and the chest) are where one outline turns into the next, not occlusions, and are
+    ignored, as are pairs of bones found in front of each other both ways.
 
     Args:
         embedding: The 2D embedding.
         scale: Pixels per world unit.
         names: Solving-bone names for the labels (optional).
         tolerance: Junction tolerance in pixels (see :func:`detect_junctions`).
+        min_parts: Fewest parent-child steps between the bones of an occlusion.
 
     Returns:
         Occlusion (Eq. 8) and T-junction constraints, without duplicates.
@@ -160,17 +226,22 @@ def ordering_constraints(embedding: Embedding2D, scale: float, names: tuple[str,
     s = embedding.solving
     out = [occlusion_constraint(embedding, o, scale, names) for o in embedding.occlusions]
     seen = {(o.back_bone, o.front_bone) for o in embedding.occlusions}
-    for stem, top, q in detect_junctions(embedding, tolerance):
+    steps = _bone_distance(np.asarray(s.parent))
+    junctions = detect_junctions(embedding, tolerance)
+    pairs = {(stem, top) for stem, top, _ in junctions}
+    for stem, top, q in junctions:
+        if (top, stem) in pairs:
+            continue  # contradictory evidence
         shared = {int(s.head_joint[stem]), int(s.tail_joint[stem])} & {
             int(s.head_joint[top]), int(s.tail_joint[top])}
-        if shared:
+        if shared and steps[stem, top] == 1:
             j = shared.pop()
             far = int(s.tail_joint[stem] if s.head_joint[stem] == j else s.head_joint[stem])
             label = (f"t_junction {names[stem]} turns behind {names[top]}" if names
                      else f"t_junction {stem} behind {top}")
             out.append(OrderingConstraint("t_junction", label, np.array([far]), np.ones(1),
                                           np.array([j]), np.ones(1), 0.0))
-        elif (stem, top) not in seen:
+        elif steps[stem, top] >= min_parts and (stem, top) not in seen:
             seen.add((stem, top))
             occ = Occlusion(top, stem, q, _radius_at(embedding, top, q),
                             _radius_at(embedding, stem, q))
