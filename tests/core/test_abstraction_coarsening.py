@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from gesture_pose.core.abstraction.coarsening import coarsen, neighbour_pairs
 from gesture_pose.core.abstraction.energies import pair_distances, pose_metric, regularizer_terms
@@ -43,6 +44,19 @@ def _full_reference(z, jac, z_start, dp):
     return w_plane, metric
 
 
+def _full_dist_reference(z, jac, z_start, dp, neighbours: int = 6) -> float:
+    """``W_dist`` (Eq. 10, linearized in ``dp``) over every vertex's nearest neighbours."""
+    _, nn = cKDTree(z).query(z, k=neighbours + 1)
+    pairs = {tuple(sorted((i, int(j)))) for i in range(len(z)) for j in nn[i, 1:] if j != i}
+    total = 0.0
+    for a, b in pairs:
+        diff = z[a] - z[b]
+        d = np.linalg.norm(diff)
+        moved = d + (diff / d) @ ((jac[a] - jac[b]) @ dp)
+        total += (moved - np.linalg.norm(z_start[a] - z_start[b])) ** 2
+    return LAMBDAS[2] * total / len(pairs)
+
+
 def test_coarsened_regularizers_equal_full_when_k_is_vertex_count() -> None:
     z, jac, space = _mesh_jacobian(rings=4, segments=6)
     coarse = coarsen(z, k=len(z))
@@ -50,12 +64,15 @@ def test_coarsened_regularizers_equal_full_when_k_is_vertex_count() -> None:
     rng = np.random.default_rng(1)
     z_start = z - 0.01 * rng.normal(size=z.shape)
     h, g, e = regularizer_terms(front_camera(), z, jac, coarse, z_start,
-                                pair_distances(z, coarse), (LAMBDAS[0], LAMBDAS[1], 0.0))
+                                pair_distances(z_start, coarse), LAMBDAS)
+    assert e["W_dist"] > 0.0
     for _ in range(3):
         dp = rng.normal(scale=0.05, size=space.n_params)
         model = sum(e.values()) + 2 * g @ dp + dp @ h @ dp
         w_plane, metric = _full_reference(z, jac, z_start, dp)
-        np.testing.assert_allclose(model, w_plane, rtol=1e-10)
+        w_dist = _full_dist_reference(z, jac, z_start, dp)
+        assert w_dist > 1e-3 * w_plane
+        np.testing.assert_allclose(model, w_plane + w_dist, rtol=1e-10)
     np.testing.assert_allclose(pose_metric(jac, coarse), metric, rtol=1e-10)
 
 

@@ -207,3 +207,20 @@ def test_closest_point_on_polyline_matches_brute_force() -> None:
     dense = np.concatenate([np.linspace(poly[i], poly[i + 1], 200) for i in range(79)])
     brute = np.linalg.norm(queries[:, None] - dense[None], axis=2).min(axis=1)
     np.testing.assert_allclose(np.linalg.norm(got - queries, axis=1), brute, atol=0.05)
+
+
+def test_box_qp_matches_osqp() -> None:
+    from scipy import sparse
+
+    from gesture_pose.core.abstraction.qp import StepQP, box_qp, solve_step_qp
+
+    rng = np.random.default_rng(8)
+    a = rng.normal(size=(40, 12))
+    hess = a.T @ a + 0.1 * np.eye(12)
+    grad = 5.0 * rng.normal(size=12)
+    lo, hi = -np.full(12, 0.3), np.full(12, 0.2)
+    x, rounds = box_qp(hess, grad, lo, hi)
+    assert rounds >= 2 and np.any(np.isclose(x, lo) | np.isclose(x, hi))
+    qp = StepQP(sparse.csc_matrix(np.triu(2 * hess)), 2 * grad,
+                sparse.identity(12, format="csc"), lo, hi, tuple(str(i) for i in range(12)))
+    np.testing.assert_allclose(x, solve_step_qp(qp, tolerance=1e-10).dp, atol=1e-6)

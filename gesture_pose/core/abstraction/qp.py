@@ -256,7 +256,66 @@ def solve_bounded_step(model: QuadraticModel, space: ParameterSpace, pose: RigPo
     x = _spd_solve(hess, -model.gradient)
     if x is not None and np.all(np.isfinite(x)) and bounds.satisfied(x):
         return StepSolution(x, 0, "unconstrained", 0.0, 0.0, (), time.perf_counter() - t0)
+    if len(bounds.limit_rows) == 0:  # only bounds on single parameters: a box QP
+        n = space.n_params
+        lo, hi = bounds.lower[:n].copy(), bounds.upper[:n].copy()
+        cols = space.scale_columns
+        lo[cols] = np.maximum(lo[cols], bounds.lower[n:])
+        hi[cols] = np.minimum(hi[cols], bounds.upper[n:])
+        boxed = box_qp(hess, model.gradient, lo, hi)
+        if boxed is not None:
+            x, iterations = boxed
+            qp = build_step_qp(model, space, pose, limits, names, bounds)
+            return StepSolution(x, iterations, "box active set", 0.0, 0.0, _active(qp, x),
+                                time.perf_counter() - t0)
     return solve_step_qp(build_step_qp(model, space, pose, limits, names, bounds))
+
+
+def box_qp(hessian: np.ndarray, gradient: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+           max_iter: int = 50) -> tuple[np.ndarray, int] | None:
+    """``min dp^T H dp + 2 g^T dp`` subject to ``lower <= dp <= upper``, by active sets.
+
+    Each round solves the free parameters with the others at their bounds (a Cholesky
+    solve), fixes the ones that leave their box, and frees the fixed ones whose gradient
+    points inside (the KKT conditions). Small dense problems (a few hundred parameters)
+    take a few rounds, far fewer operations than an ADMM solver.
+
+    Args:
+        hessian: ``H``, symmetric positive definite, ``(P, P)``.
+        gradient: ``g``, ``(P,)``.
+        lower: ``(P,)`` (``lower <= 0 <= upper``).
+        upper: ``(P,)``.
+        max_iter: Rounds at most.
+
+    Returns:
+        ``(dp, rounds)``, or None when it did not settle (the caller uses OSQP).
+    """
+    n = len(gradient)
+    at_lo, at_hi = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+    x = np.zeros(n)
+    scale = max(float(np.abs(gradient).max(initial=0.0)), 1e-300)
+    for rounds in range(1, max_iter + 1):
+        free = ~(at_lo | at_hi)
+        x[at_lo], x[at_hi] = lower[at_lo], upper[at_hi]
+        if np.any(free):
+            rhs = -(gradient[free] + hessian[np.ix_(free, ~free)] @ x[~free])
+            sol = _spd_solve(hessian[np.ix_(free, free)], rhs)
+            if sol is None:
+                return None
+            x[free] = sol
+        tol = 1e-12 * np.maximum(1.0, np.abs(x))
+        low, high = free & (x < lower - tol), free & (x > upper + tol)
+        if np.any(low | high):
+            at_lo |= low
+            at_hi |= high
+            continue
+        grad = hessian @ x + gradient
+        release = (at_lo & (grad < -1e-10 * scale)) | (at_hi & (grad > 1e-10 * scale))
+        if not np.any(release):
+            return np.clip(x, lower, upper), rounds
+        at_lo &= ~release
+        at_hi &= ~release
+    return None
 
 
 def _active(qp: StepQP, x: np.ndarray) -> tuple[str, ...]:
