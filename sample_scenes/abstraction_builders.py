@@ -40,6 +40,7 @@ OUTLINE_WIDTH = (0.16, 0.06, 0.06, 0.08, 0.08)
 
 
 def _bone_points(arm_obj: bpy.types.Object, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """World rest head and tail of a bone, each ``(3,)``."""
     bone = arm_obj.data.bones[name]
     m = np.array(arm_obj.matrix_world)
     return (m[:3, :3] @ np.array(bone.head_local) + m[:3, 3],
@@ -47,6 +48,7 @@ def _bone_points(arm_obj: bpy.types.Object, name: str) -> tuple[np.ndarray, np.n
 
 
 def _collection(name: str, parent: bpy.types.Collection) -> bpy.types.Collection:
+    """The collection ``name`` (created if missing), linked under ``parent``."""
     coll = bpy.data.collections.get(name) or bpy.data.collections.new(name)
     if coll.name not in parent.children:
         parent.children.link(coll)
@@ -71,8 +73,8 @@ def _edge_mesh(name: str, polylines: Sequence[np.ndarray], weights: Sequence[np.
         idx = np.flatnonzero(w[:, j] > 1e-6)
         if idx.size:
             group = obj.vertex_groups.new(name=bone)
-            for i in idx:
-                group.add([int(i)], float(w[i, j]), "REPLACE")
+            for value in np.unique(w[idx, j]):  # one call per distinct weight
+                group.add(idx[w[idx, j] == value].tolist(), float(value), "REPLACE")
     mod = obj.modifiers.new("Armature", "ARMATURE")
     mod.object = arm_obj
     obj.hide_render = True
@@ -100,16 +102,20 @@ def add_stick_figure(arm_obj: bpy.types.Object, coll: bpy.types.Collection,
 
 
 def _mesh_weights(mesh_obj: bpy.types.Object, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """World vertices ``(v, 3)`` of a skinned mesh and its bone weights ``(v, n)``."""
     co = np.empty(len(mesh_obj.data.vertices) * 3)
     mesh_obj.data.vertices.foreach_get("co", co)
     m = np.array(mesh_obj.matrix_world)
     pts = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
-    col = {g.index: names.index(g.name) for g in mesh_obj.vertex_groups if g.name in names}
+    col = np.array([names.index(g.name) if g.name in names else -1
+                    for g in mesh_obj.vertex_groups] or [-1])
+    # No foreach_get for vertex-group memberships: one pass, then a numpy scatter.
+    triples = [(v.index, g.group, g.weight) for v in mesh_obj.data.vertices for g in v.groups]
     w = np.zeros((len(pts), len(names)))
-    for v in mesh_obj.data.vertices:
-        for g in v.groups:
-            if g.group in col:
-                w[v.index, col[g.group]] += g.weight
+    if triples:
+        vi, gi, wt = (np.array(c) for c in zip(*triples, strict=True))
+        keep = col[gi.astype(int)] >= 0
+        np.add.at(w, (vi[keep], col[gi[keep].astype(int)]), wt[keep])
     return pts, w
 
 
@@ -204,10 +210,6 @@ def save_abstraction_scene(path: str | Path, pose_name: str = "wave") -> Path:
     return out
 
 
-if __name__ == "__main__":
-    print(save_abstraction_scene(sys.argv[1] if len(sys.argv) > 1
-                                 else ROOT / "sample_scenes" / "abstraction.blend"))
-
 
 def toward_camera(polylines: Sequence[np.ndarray], distance: float = 0.3) -> list[np.ndarray]:
     """Slide points along their rays toward the scene camera (same picture, drawn in front)."""
@@ -234,6 +236,7 @@ def _overlay(name: str, polylines: Sequence[np.ndarray], color: Sequence[float],
 
 
 def _render(path: Path, size: int = 480) -> None:
+    """Render the scene camera's view with Workbench to a square PNG at ``path``."""
     scene = bpy.context.scene
     scene.render.engine = "BLENDER_WORKBENCH"
     scene.render.resolution_x = scene.render.resolution_y = size
@@ -312,3 +315,8 @@ def render_figures(outdir: str | Path) -> list[Path]:
     written.append(out / "abstraction_drawover_result.png")
     _render(written[-1])
     return written
+
+
+if __name__ == "__main__":
+    print(save_abstraction_scene(sys.argv[1] if len(sys.argv) > 1
+                                 else ROOT / "sample_scenes" / "abstraction.blend"))

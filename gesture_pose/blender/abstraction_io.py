@@ -77,6 +77,7 @@ def resolve_abstraction(context, name: str = "") -> list[bpy.types.Object]:
 
 
 def _world(points: np.ndarray, matrix) -> np.ndarray:
+    """Points ``(v, 3)`` in an object's space to world space with its 4x4 ``matrix``."""
     m = np.array(matrix, dtype=float)
     return points @ m[:3, :3].T + m[:3, 3]
 
@@ -117,6 +118,7 @@ def _gp_arrays(obj, depsgraph) -> tuple[np.ndarray, list[tuple[int, int]], list[
 
 
 def _object_points(obj, depsgraph) -> np.ndarray:
+    """All evaluated world points of an abstraction object, ``(v, 3)``."""
     if obj.type == "GREASEPENCIL":
         return _gp_arrays(obj, depsgraph)[0]
     return _mesh_arrays(obj, depsgraph)[0]
@@ -125,18 +127,25 @@ def _object_points(obj, depsgraph) -> np.ndarray:
 def _vertex_group_weights(obj, skeleton: Skeleton) -> np.ndarray | None:
     """Bone weights of a mesh object's vertices, ``(v, n)``, or None without bone groups."""
     bone = {name: i for i, name in enumerate(skeleton.names)}
-    column = {vg.index: bone[vg.name] for vg in obj.vertex_groups if vg.name in bone}
-    if not column:
+    column = np.full(max(len(obj.vertex_groups), 1), -1, dtype=np.int64)
+    for vg in obj.vertex_groups:
+        column[vg.index] = bone.get(vg.name, -1)
+    if not np.any(column >= 0):
         return None
+    # Blender has no foreach_get for vertex-group memberships: gather the (vertex, group,
+    # weight) triples in one pass, then scatter them into the matrix with numpy.
+    triples = [(v.index, g.group, g.weight) for v in obj.data.vertices for g in v.groups]
     out = np.zeros((len(obj.data.vertices), skeleton.n_bones))
-    for v in obj.data.vertices:
-        for g in v.groups:
-            if g.group in column:
-                out[v.index, column[g.group]] += g.weight
+    if triples:
+        vi, gi, w = (np.array(c) for c in zip(*triples, strict=True))
+        gi = gi.astype(np.int64)
+        keep = (gi < len(column)) & (column[np.minimum(gi, len(column) - 1)] >= 0)
+        np.add.at(out, (vi[keep], column[gi[keep]]), w[keep])
     return out if np.any(out.sum(axis=1) > 0) else None
 
 
 def _parent_bone(obj, arm_obj, skeleton: Skeleton) -> int | None:
+    """The bone ``obj`` is parented to (``Parent > Bone`` on the armature), or None."""
     if obj.parent == arm_obj and obj.parent_type == "BONE" and obj.parent_bone in skeleton.names:
         return skeleton.index(obj.parent_bone)
     return None
@@ -267,6 +276,17 @@ class BlenderRigEvaluator:
 
     def __init__(self, context, arm_obj, arm: ArmatureData, space: ParameterSpace,
                  objects: list, picks: tuple[np.ndarray, ...], mesh_objects: list) -> None:
+        """Remember what to evaluate, and the pose bones' transforms to restore.
+
+        Args:
+            context: The Blender context (its view layer is updated per evaluation).
+            arm_obj: The armature object.
+            arm: Its data as read before the solve.
+            space: Free parameters (only their bones are written per evaluation).
+            objects: Abstraction objects, in :func:`read_abstraction` order.
+            picks: Per object, the indices of its evaluated points used.
+            mesh_objects: The skinned character meshes.
+        """
         self._context, self._arm_obj, self._arm = context, arm_obj, arm
         self._objects, self._picks, self._meshes = objects, picks, mesh_objects
         self._bones = np.unique(np.concatenate([space.rotation_bones, space.scale_bones,

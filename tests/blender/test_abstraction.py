@@ -125,8 +125,16 @@ def test_drawover_moves_the_forearm(humanoid) -> None:
     got = _bone_dirs(arm)
     assert _image_angle(got["forearm.L"], want) < 5.0
     assert _angle(got["thigh.R"], rest["thigh.R"]) < 1.0
-    drawing = sketch.data.layers["Lines"].current_frame().drawing
-    assert len(drawing.strokes) == 1  # the source, carried to the new pose
+    carried = builders.read_strokes(sketch)
+    assert len(carried) == 1  # the source, carried to the new pose
+    # It lies on the posed forearm (on its surface: within the arm's radius of the bone)...
+    pb = arm.pose.bones["forearm.L"]
+    h, t = (np.array(arm.matrix_world @ v) for v in (pb.head, pb.tail))
+    s = np.clip((carried[0] - h) @ (t - h) / ((t - h) @ (t - h)), 0.0, 1.0)
+    off_bone = np.linalg.norm(carried[0] - (h + s[:, None] * (t - h)), axis=1)
+    assert off_bone.max() < 0.06 and np.ptp(s) > 0.5
+    # ...and is seen where the target was drawn.
+    assert _mean_px_distance([carried[0]], [target]) < 3.0
 
 
 def test_drawover_needs_a_stroke_on_the_character(humanoid) -> None:

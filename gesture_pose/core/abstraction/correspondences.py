@@ -189,7 +189,8 @@ def in_order_rows(curve: np.ndarray, stroke: Stroke) -> tuple[np.ndarray, np.nda
     return np.arange(len(curve)), polyline_at(stroke, u * stroke.length)
 
 
-def closest_rows(curve: np.ndarray, stroke: Stroke, step: float = 2.0):
+def closest_rows(curve: np.ndarray, stroke: Stroke, step: float = 2.0
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int]:
     """Closest-point rows in both directions.
 
     Args:
@@ -198,8 +199,11 @@ def closest_rows(curve: np.ndarray, stroke: Stroke, step: float = 2.0):
         step: Sampling step of the stroke, pixels.
 
     Returns:
-        ``(rows, cols, vals, targets)`` of the local blend (rows of curve-to-stroke pairs
-        first, then stroke-to-curve pairs) and the targets ``(q, 2)``.
+        ``(rows, cols, vals, targets, m, k)``: the local blend's entries (``m`` rows of
+        curve-to-stroke pairs, each one curve point with weight 1, then ``k`` rows of
+        stroke-to-curve pairs, each blending the two ends of a curve segment; ``rows`` and
+        ``vals`` of shape ``(m + 2k,)``), the targets ``(m + k, 2)`` pixels (closest stroke
+        points, then the ``k`` stroke samples), and ``m`` and ``k``.
     """
     poly = polyline_at(stroke, stroke.sample_params(step))
     m = len(curve)
