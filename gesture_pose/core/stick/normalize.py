@@ -13,11 +13,11 @@ import numpy as np
 from .graph import StickFigure
 
 
-def drawing_scale(stick: StickFigure, lengths_3d: np.ndarray, quantile: float = 0.8) -> float:
-    """Pixels per world unit suggested by the drawing: a high quantile of drawn/3D ratios.
+def drawing_scale(stick: StickFigure, lengths_3d: np.ndarray, quantile: float = 1.0) -> float:
+    """Pixels per world unit suggested by the drawing: the largest drawn/3D edge ratio.
 
-    Foreshortening only shortens edges, perspective lengthens the nearer ones: a high
-    quantile (not the maximum) of the ratios is taken.
+    Foreshortening only shortens edges, so the largest ratio (``quantile`` 1) is the
+    least foreshortened edge's.
 
     Args:
         stick: The drawing.

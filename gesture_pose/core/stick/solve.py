@@ -318,8 +318,6 @@ def _solve(inp: StickInput) -> StickResult:
         root_range = 0.12 * height
     else:
         depth = depth_guess
-        if not env_pins:
-            root_range = 0.5 * height
         if env_pins:
             depth = float(np.mean(cam.depth(np.array([p.target for p in env_pins]))))
         root = cam.unproject_at_depth(stick.points[pelvis_j][None], depth)[0]
