@@ -73,8 +73,11 @@ def test_redraw_posing_recovers_known_pose(humanoid, abstraction: str) -> None:
     builders.pose_humanoid(arm, "rest")
     builders.add_grease_pencil("Sketch", strokes)
     before = _mean_px_distance(ab.evaluated_polylines(obj), strokes)
+    # Outline points blend several bones and slide along the curve: the documented
+    # choice for them is in-order, then closest point.
+    procedure = "IN_ORDER" if abstraction == "Stick Figure" else "IN_ORDER_CLOSEST"
     result = _run(bpy.ops.gesture_pose.pose_abstraction, arm, sketch="Sketch",
-                  abstraction=abstraction)
+                  abstraction=abstraction, correspondence=procedure)
     assert result == {"FINISHED"}
     got = _bone_dirs(arm)
     after = _mean_px_distance(ab.evaluated_polylines(obj), strokes)
@@ -402,10 +405,8 @@ def test_redrawing_one_arm_leaves_the_rest_of_the_rig(humanoid, abstraction: str
         assert not _keyed(arm, name), name
     assert _keyed(arm, "upper_arm.L") and _keyed(arm, "forearm.L")
     # The raise is in the image plane, so it is reachable in 3D.
-    tolerance = 2.0 if abstraction == "Stick Figure" else 15.0
-    for name in ("upper_arm.L", "forearm.L"):
-        assert _angle(got[name], want[name]) < tolerance, name
-        assert _image_angle(got[name], want[name]) < 4.0, name
+    for name in ("upper_arm.L", "forearm.L", "hand.L", "fingers.L"):
+        assert _angle(got[name], want[name]) < 2.0, name
 
 
 def test_black_box_path_recovers_the_constrained_rotation(humanoid, capfd) -> None:

@@ -54,8 +54,11 @@ def test_drawn_bones_include_those_between_but_not_above() -> None:
     parents = np.array([-1, 0, 1, 2, 3, 0])  # a chain 0-1-2-3-4 and a side bone 5
     w = np.zeros((2, 6))
     w[0, 2] = 1.0
-    w[1, 4] = 0.97
-    w[1, 5] = 0.03  # below the threshold
+    w[1, 4] = 0.5  # a point half on bone 4 and half on bone 5 draws neither
+    w[1, 5] = 0.5
+    w[0, 3] = 0.0
+    np.testing.assert_array_equal(drawn_bones(w, parents), [2])
+    w[1, 4] = 0.6
     np.testing.assert_array_equal(drawn_bones(w, parents), [2, 3, 4])
 
 

@@ -10,7 +10,11 @@ from gesture_pose.core.abstraction.curves import CurveLayout
 from gesture_pose.core.abstraction.drawover import project_onto_mesh, ray_triangle
 from gesture_pose.core.abstraction.parameters import ParameterSpace, RigPose
 from gesture_pose.core.abstraction.rig import LbsRig, lbs_weighted_rest, pose_bones, skin
-from gesture_pose.core.abstraction.solver import AbstractionProblem, solve_abstraction
+from gesture_pose.core.abstraction.solver import (
+    AbstractionProblem,
+    SolveOptions,
+    solve_abstraction,
+)
 from gesture_pose.core.exceptions import InputError
 from gesture_pose.core.stroke import Stroke
 from tests.core.fixtures import front_camera, tree_skeleton
@@ -67,12 +71,12 @@ def test_drawover_moves_the_limb_onto_the_target_stroke() -> None:
     problem = AbstractionProblem(rig, skel.names, cam,
                                  CurveLayout(("drawover",), np.array([0, curve.kept.size])),
                                  (Stroke(target_px),), coarse, start)
-    result = solve_abstraction(problem)
+    result = solve_abstraction(problem, SolveOptions(moved_bones="DRAWN_AND_LIMB"))
     assert result.initial_residual_px > 15.0
     assert result.residual_px < 0.5
     moved = skin(pose_bones(skel, result.pose), curve.rigged_rest(y_all))
     np.testing.assert_allclose(cam.project(moved), target_px, atol=1.5)
-    # Bones far from the stroke barely move (W_pose keeps the rest of the body still).
-    for name in ("neck", "arm.R", "fore.R"):
-        i = skel.index(name)
-        assert np.linalg.norm(result.pose.rotations[i] - np.eye(3)) < 0.05
+    # The forearm's limb (the upper arm) follows; the rest of the body is kept exactly.
+    assert set(result.frozen) == {"root", "neck", "arm.R", "fore.R"}
+    for name in result.frozen:
+        np.testing.assert_array_equal(result.pose.rotations[skel.index(name)], np.eye(3))

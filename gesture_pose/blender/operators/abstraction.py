@@ -52,7 +52,9 @@ ASSIGNMENT_ITEMS = [
 MOVED_ITEMS = [
     ("DRAWN", "Drawn Bones", "Only the bones the matched curves are drawn on (and those "
      "between them) move; the rest of the rig is kept as it is"),
-    ("DRAWN_AND_PARENTS", "Drawn Bones and Parents", "Also the bones above them (the spine "
+    ("DRAWN_AND_LIMB", "Drawn Bones and Limb", "Also the bones above them up to where the "
+     "limb branches (upper arm and shoulder for a forearm, not the chest)"),
+    ("DRAWN_AND_PARENTS", "Drawn Bones and Parents", "Also every bone above them (the spine "
      "when an arm is redrawn), held back by the pose regularizer"),
 ]
 
@@ -66,7 +68,6 @@ class _SolverProps:
                                      "holding the strokes (empty: automatic)")
     correspondence: bpy.props.EnumProperty(name="Correspondence", items=CORRESPONDENCE_ITEMS,
                                            default="IN_ORDER")
-    moved_bones: bpy.props.EnumProperty(name="Move", items=MOVED_ITEMS, default="DRAWN")
     free_rotations: bpy.props.BoolProperty(name="Rotations", default=True,
                                            description="Optimize bone rotations")
     free_scales: bpy.props.BoolProperty(name="Scales", default=False,
@@ -104,6 +105,7 @@ class GESTUREPOSE_OT_pose_abstraction(_SolverProps, GesturePoseOperatorMixin,
     assignment: bpy.props.EnumProperty(name="Stroke to Curve", items=ASSIGNMENT_ITEMS,
                                        default="PROXIMITY")
     remove_used_strokes: bpy.props.BoolProperty(name="Remove Used Strokes", default=False)
+    moved_bones: bpy.props.EnumProperty(name="Move", items=MOVED_ITEMS, default="DRAWN")
 
     def run(self, context: bpy.types.Context) -> set[str]:
         """Read, solve, write (see the module docstring)."""
@@ -171,6 +173,8 @@ class GESTUREPOSE_OT_drawover(_SolverProps, GesturePoseOperatorMixin, bpy.types.
     keep_source: bpy.props.BoolProperty(name="Keep Source", default=False, description=(
         "Replace the two strokes by the source carried to the new pose, ready to be "
         "redrawn again (off: your strokes are left as drawn)"))
+    moved_bones: bpy.props.EnumProperty(name="Move", items=MOVED_ITEMS,
+                                        default="DRAWN_AND_LIMB")
 
     def run(self, context: bpy.types.Context) -> set[str]:
         """Read, solve, write (see the module docstring)."""

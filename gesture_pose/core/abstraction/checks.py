@@ -39,8 +39,10 @@ END_ON_RATIO = 0.25
 #: Matched curves (or a draw-over source) shorter than this fraction of the character's
 #: projected size project to almost nothing.
 TINY_FRACTION = 0.02
-#: A bone is drawn on when a matched point has at least this weight on it.
-DRAWN_WEIGHT = 0.05
+#: A bone is drawn on when a matched point has more than this weight on it (the point
+#: moves mostly with the bone; a point blended half-half at a joint does not draw the
+#: bone beyond the joint, e.g. the fingers at the end of an arm outline).
+DRAWN_WEIGHT = 0.5
 #: ``J_x`` columns below this fraction of the largest entry count as zero (finite
 #: differences of black-box rigs leave round-off there).
 SEEN_TOLERANCE = 1e-7
@@ -177,7 +179,7 @@ def drawn_bones(weights: np.ndarray, parents: np.ndarray,
                 min_weight: float = DRAWN_WEIGHT) -> np.ndarray:
     """Bones the matched abstraction points are drawn on, and the bones between them.
 
-    A bone is drawn on when a matched point has a weight of at least ``min_weight`` on it;
+    A bone is drawn on when a matched point has a weight of more than ``min_weight`` on it;
     a bone with a drawn bone above it and another below it (the forearm when the upper arm
     and the hand are drawn) carries drawn parts and is included too. Bones above the
     topmost drawn bone of every chain are not.
@@ -185,12 +187,12 @@ def drawn_bones(weights: np.ndarray, parents: np.ndarray,
     Args:
         weights: Normalized bone weights of the matched points, shape ``(q, n)``.
         parents: Parent of every bone (parents first), shape ``(n,)``.
-        min_weight: Smallest weight that counts.
+        min_weight: Weight a point must exceed on a bone.
 
     Returns:
         Sorted bone indices, ``(b,)``.
     """
-    drawn = np.asarray(weights >= min_weight).any(axis=0)
+    drawn = np.asarray(weights > min_weight).any(axis=0)
     n = len(parents)
     above = np.zeros(n, dtype=bool)  # a drawn bone strictly above
     for j in range(n):
@@ -202,3 +204,26 @@ def drawn_bones(weights: np.ndarray, parents: np.ndarray,
         if p >= 0 and (drawn[j] or below[j]):
             below[p] = True
     return np.flatnonzero(drawn | (above & below))
+
+
+def limb_bones(bones: np.ndarray, parents: np.ndarray) -> np.ndarray:
+    """``bones`` and their ancestors up to the first bone with several children.
+
+    The drawn bones' limb: from a forearm, the upper arm and the shoulder, but not the
+    chest they branch from (nor anything above it).
+
+    Args:
+        bones: Bone indices, ``(b,)``.
+        parents: Parent of every bone, ``(n,)``.
+
+    Returns:
+        Sorted bone indices.
+    """
+    children = np.bincount(parents[parents >= 0], minlength=len(parents))
+    out = set(int(b) for b in bones)
+    for b in bones:
+        p = parents[b]
+        while p >= 0 and children[p] == 1:
+            out.add(int(p))
+            p = parents[p]
+    return np.array(sorted(out), dtype=int)

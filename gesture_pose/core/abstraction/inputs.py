@@ -22,6 +22,7 @@ from .checks import (
     drawn_bones,
     end_on_bones,
     end_on_message,
+    limb_bones,
 )
 from .correspondences import assign_strokes
 from .curves import CurveLayout, polyline_arclength
@@ -33,6 +34,8 @@ if TYPE_CHECKING:
 
 #: Only the bones drawn on (and between them) move.
 MOVE_DRAWN = "DRAWN"
+#: Also their limb: the bones above them up to the first bone with several children.
+MOVE_DRAWN_AND_LIMB = "DRAWN_AND_LIMB"
 #: Also the bones above them (every bone whose rotation moves a matched point).
 MOVE_DRAWN_AND_PARENTS = "DRAWN_AND_PARENTS"
 
@@ -90,13 +93,16 @@ def end_on_names(problem: AbstractionProblem, pose: RigPose, rows: np.ndarray) -
 def _moving_bones(problem: AbstractionProblem, jac_matched: np.ndarray, space, rows,
                   mode: str) -> np.ndarray:
     """Bones whose parameters stay free (see :data:`MOVE_DRAWN`)."""
+    modes = (MOVE_DRAWN, MOVE_DRAWN_AND_LIMB, MOVE_DRAWN_AND_PARENTS)
+    if mode not in modes:
+        raise InputError(f"Unknown bone choice '{mode}': use one of {', '.join(modes)}.")
     seen = constrained_bones(jac_matched, space)
     view = bone_view(problem)
-    if mode == MOVE_DRAWN and view is not None:
-        seen = np.intersect1d(seen, drawn_bones(view[1][rows], view[0].parents))
-    elif mode not in (MOVE_DRAWN, MOVE_DRAWN_AND_PARENTS):
-        raise InputError(f"Unknown bone choice '{mode}': use {MOVE_DRAWN} or "
-                         f"{MOVE_DRAWN_AND_PARENTS}.")
+    if mode != MOVE_DRAWN_AND_PARENTS and view is not None:
+        drawn = drawn_bones(view[1][rows], view[0].parents)
+        if mode == MOVE_DRAWN_AND_LIMB:
+            drawn = limb_bones(drawn, view[0].parents)
+        seen = np.intersect1d(seen, drawn)
     return seen
 
 

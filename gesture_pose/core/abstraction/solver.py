@@ -92,8 +92,10 @@ class SolveOptions:
         min_damping: Smallest scale of ``W_pose``; the stopping tests (other than the
             residual tolerance) apply once it is reached.
         moved_bones: ``"DRAWN"``: only the bones the matched points are weighted on (and
-            those between them) move; ``"DRAWN_AND_PARENTS"``: every bone whose rotation
-            moves a matched point (the spine for an arm). Other bones are kept exactly.
+            those between them) move; ``"DRAWN_AND_LIMB"``: also the bones above them up
+            to the first branching bone (upper arm and shoulder for a forearm);
+            ``"DRAWN_AND_PARENTS"``: every bone whose rotation moves a matched point (the
+            spine for an arm). Other bones are kept exactly.
     """
 
     correspondence: str = IN_ORDER
