@@ -40,7 +40,8 @@ class CostParams:
         sigma_angle: ``sigma_a`` otherwise, radians.
         conform_angle: Largest angle between a conforming contour sample and its bone.
         rigid_sigma: Sigma of rigid offsets (unconnected heads), fraction of the diagonal.
-        w_direction: Weight of the direction prior (see :func:`direction_cost`).
+        w_direction: Weight of the direction prior (see :func:`direction_cost`); not in the
+            paper.
     """
 
     alpha: float = np.radians(15.0)
