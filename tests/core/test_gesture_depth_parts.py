@@ -323,3 +323,26 @@ def test_pose_error_aligns_the_root_and_counts_depth_order():
     assert err.depth_order == 0.0
     assert err.max_error == pytest.approx(100.0 * 1.0 / 2.3)
     assert err.mean_error == pytest.approx(100.0 * (0 + 1.0 + 1.0) / 3 / 2.3)
+
+
+def test_junctions_between_nearby_parts_are_not_occlusions():
+    sk = tree_skeleton()
+    cam = front_camera(ortho=True)
+    solving = solving_skeleton(sk)
+    base = project_embedding(sk, solving, Pose.identity(6), cam)
+    # An arm.R outline stopping across an arm.L outline: the two arms hang off the root
+    # (two steps apart), so by default this is not read as an occlusion.
+    top = np.stack([np.linspace(400, 500, 51), np.full(51, 300.0)], 1)
+    stem = np.stack([np.full(21, 450.0), np.linspace(260, 300, 21)], 1)
+    emb = _embedding_with_pieces(base, {2: [top], 4: [stem]}, [top, stem])
+    assert [(s, t) for s, t, _ in ordering.detect_junctions(emb)] == [(4, 2)]
+    assert ordering.ordering_constraints(emb, scale=200.0) == []
+    cons = ordering.ordering_constraints(emb, scale=200.0, min_parts=2)
+    assert len(cons) == 1 and cons[0].kind == "occlusion"
+    assert set(cons[0].back.tolist()) <= {solving.head_joint[4], solving.tail_joint[4]}
+    # Evidence both ways cancels out: an arm.L outline also stops across the arm.R one.
+    other = np.stack([np.linspace(420, 450, 16), np.full(16, 280.0)], 1)
+    emb2 = _embedding_with_pieces(base, {2: [top, other], 4: [stem]}, [top, stem, other])
+    found = {(s, t) for s, t, _ in ordering.detect_junctions(emb2)}
+    assert found == {(4, 2), (2, 4)}
+    assert ordering.ordering_constraints(emb2, scale=200.0, min_parts=2) == []

@@ -123,35 +123,47 @@ def _bone_labels(embedding: Embedding2D) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(pts), np.concatenate(lab)
 
 
-def _bone_near(points: np.ndarray, labels: np.ndarray, x: np.ndarray, reach: float) -> int:
-    """The bone whose matched contour samples come nearest ``x`` (within ``reach``), or -1."""
+def _bone_near(points: np.ndarray, labels: np.ndarray, x: np.ndarray, reach: float,
+               exclude: int = -1) -> int:
+    """The bone, other than ``exclude``, whose matched samples come nearest ``x``.
+
+    Returns:
+        The solving-bone index, or -1 when no such sample lies within ``reach``.
+    """
     if not len(points):
         return -1
-    d = np.linalg.norm(points - x, axis=1)
+    d = np.where(labels == exclude, np.inf, np.linalg.norm(points - x, axis=1))
     i = int(np.argmin(d))
     return int(labels[i]) if d[i] <= reach else -1
 
 
 def detect_junctions(embedding: Embedding2D, tolerance: float | None = None,
-                     min_angle: float = np.radians(30.0)) -> list[tuple[int, int, np.ndarray]]:
+                     min_angle: float = np.radians(45.0), interior: float | None = None
+                     ) -> list[tuple[int, int, np.ndarray]]:
     """T-junctions of the drawing's contours, attributed to bones.
 
     A contour end is the stem of a T when it stops within ``tolerance`` of another
-    contour's interior (more than ``tolerance`` of arc length from that contour's ends) and
-    meets it at more than ``min_angle``. The stem and top bones are those whose matched
+    contour's interior (more than ``interior`` of arc length from that contour's ends) and
+    meets it at more than ``min_angle``. The defaults are strict: with rough drawings and
+    imperfect correspondences a wrong order does more harm than a missing one. The stem
+    and top bones are those whose matched
     contour samples (the embedding's correspondences) lie nearest the stem's last sample
     but one and the junction point, within one resampling step.
 
     Args:
         embedding: The 2D embedding with its contours and contour-to-bone correspondences.
-        tolerance: Distance in pixels; defaults to 0.75 resampling steps (2 px if unknown).
+        tolerance: Distance in pixels; defaults to half a resampling step (a step is 2 px
+            if unknown).
         min_angle: Smallest angle between the stem and the top contour, radians.
+        interior: Smallest arc length between the junction and the top contour's ends,
+            pixels (default: two resampling steps).
 
     Returns:
         ``(stem_bone, top_bone, point)`` triples (one per bone pair), point in pixels.
     """
     eps = embedding.epsilon if embedding.epsilon > 0 else 2.0
-    tol = tolerance if tolerance is not None else 0.75 * eps
+    tol = tolerance if tolerance is not None else 0.5 * eps
+    inner = 2.0 * eps if interior is None else interior
     points, labels = _bone_labels(embedding)
     contours = [np.asarray(c, float) for c in embedding.contours if len(c) >= 2]
     found: dict[tuple[int, int], np.ndarray] = {}
@@ -163,14 +175,14 @@ def detect_junctions(embedding: Embedding2D, tolerance: float | None = None,
                     continue
                 d, q, arc, top_tangent = _closest_on_polyline(other, end)
                 length = float(np.sum(np.linalg.norm(np.diff(other, axis=0), axis=1)))
-                if d > tol or min(arc, length - arc) <= tol:
+                if d > tol or min(arc, length - arc) <= inner:
                     continue
                 if abs(float(tangent @ top_tangent)) > np.cos(min_angle):
                     continue
                 # The stem's end also lies on the top's outline: attribute the stem one
                 # sample back along its own contour.
                 stem = _bone_near(points, labels, prev, eps)
-                top = _bone_near(points, labels, q, eps)
+                top = _bone_near(points, labels, q, eps, exclude=stem)
                 if stem >= 0 and top >= 0 and stem != top and (stem, top) not in found:
                     found[(stem, top)] = q
     return [(s, t, p) for (s, t), p in found.items()]
