@@ -135,3 +135,24 @@ def test_pin_to_limb_and_clear(registered):
         bpy.ops.gesture_pose.pin_joint(joint="wrist.R", target="CLEAR")
     env, limb = read_pins(bpy.context.scene)
     assert limb == () and len(env) == 1
+
+
+def test_edited_stick_is_written_back_to_the_sketch(registered):
+    from gesture_pose.blender.operators.stick import (
+        GESTUREPOSE_OT_edit_stick_figure,
+        read_stick_scene,
+        write_stick,
+    )
+    from gesture_pose.core.stick.edit import drag_node
+
+    sc = sb.build_stick_scene("stand")
+    arm, sketch = sc["armature"], sc["sketch"]
+    st = read_stick_scene(bpy.context, arm, sketch)
+    wrist = st.stick.joint_names.index("wrist.L")
+    edited = drag_node(st.stick, wrist, st.stick.points[wrist] + [90.0, 60.0])
+    write_stick(sketch, edited, st.camera, st.sketch_depth, bpy.context.scene.frame_current)
+    again = read_stick_scene(bpy.context, arm, sketch)
+    drawn = again.stick.present
+    assert np.allclose(again.stick.points[drawn], edited.points[drawn], atol=0.5)
+    # The modal editor needs a 3D View: headless, its poll says so.
+    assert not GESTUREPOSE_OT_edit_stick_figure.poll(bpy.context)
