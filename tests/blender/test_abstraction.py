@@ -102,6 +102,14 @@ def test_closest_point_and_order_options(humanoid) -> None:
     assert not keyed_frames(arm, "upper_arm.L", "rotation_quaternion")
 
 
+def _bone_line(arm, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """World rest head and tail of a bone."""
+    m = np.array(arm.matrix_world)
+    bone = arm.data.bones[name]
+    return tuple(m[:3, :3] @ np.array(v) + m[:3, 3] for v in (bone.head_local,
+                                                                bone.tail_local))
+
+
 def _bone_motion(arm, name: str) -> np.ndarray:
     pb = arm.pose.bones[name]
     return np.array(arm.matrix_world @ pb.matrix @ pb.bone.matrix_local.inverted()
@@ -110,10 +118,7 @@ def _bone_motion(arm, name: str) -> np.ndarray:
 
 def test_drawover_moves_the_forearm(humanoid) -> None:
     arm, mesh, _, _ = humanoid
-    m = np.array(arm.matrix_world)
-    bone = arm.data.bones["forearm.L"]
-    head, tail = (m[:3, :3] @ np.array(v) + m[:3, 3] for v in (bone.head_local,
-                                                                 bone.tail_local))
+    head, tail = _bone_line(arm, "forearm.L")
     source = head + np.linspace(0.15, 0.9, 25)[:, None] * (tail - head) + [0, -0.2, 0]
     builders.apply_rotations(arm, {"forearm.L": ((0.0, 1.0, 0.0), -50.0)})
     bpy.context.view_layer.update()
@@ -148,29 +153,6 @@ def test_drawover_needs_a_stroke_on_the_character(humanoid) -> None:
         _run(bpy.ops.gesture_pose.drawover, arm, sketch="Sketch")
 
 
-def test_black_box_path_follows_a_constraint(humanoid) -> None:
-    arm, _, stick, _ = humanoid
-    pinned = arm.data.collections.new("Pinned")
-    for b in arm.data.bones:
-        if b.name not in ("upper_arm.L", "forearm.L"):
-            pinned.assign(b)
-    con = arm.pose.bones["forearm.L"].constraints.new("COPY_ROTATION")
-    con.target, con.subtarget = arm, "upper_arm.L"
-    con.mix_mode, con.owner_space, con.target_space = "ADD", "LOCAL", "LOCAL"
-    builders.apply_rotations(arm, {"upper_arm.L": ((0.0, 1.0, 0.0), -30.0)})
-    bpy.context.view_layer.update()
-    strokes = ab.evaluated_polylines(stick)
-    builders.pose_humanoid(arm, "rest")
-    builders.add_grease_pencil("Sketch", strokes)
-    before = _mean_px_distance(ab.evaluated_polylines(stick), strokes)
-    result = _run(bpy.ops.gesture_pose.pose_abstraction, arm, sketch="Sketch",
-                  abstraction="Stick Figure", black_box=True, representatives=60,
-                  max_iterations=15)
-    assert result == {"FINISHED"}
-    after = _mean_px_distance(ab.evaluated_polylines(stick), strokes)
-    assert before > 10.0 and after < 1.5
-
-
 def _parent_to_bone(obj, arm, bone: str) -> None:
     world = obj.matrix_world.copy()
     obj.parent, obj.parent_type, obj.parent_bone = arm, "BONE", bone
@@ -180,14 +162,11 @@ def _parent_to_bone(obj, arm, bone: str) -> None:
 
 def test_curve_and_grease_pencil_abstractions_parented_to_bones(humanoid) -> None:
     arm, _, _, _ = humanoid
-    m = np.array(arm.matrix_world)
     coll = bpy.data.collections.new("Arm Lines")
     bpy.data.collections["Sketch Abstraction"].children.link(coll)
     lines = {}
     for bone_name in ("upper_arm.L", "forearm.L"):
-        bone = arm.data.bones[bone_name]
-        head, tail = (m[:3, :3] @ np.array(v) + m[:3, 3] for v in (bone.head_local,
-                                                                     bone.tail_local))
+        head, tail = _bone_line(arm, bone_name)
         lines[bone_name] = head + np.linspace(0.05, 0.95, 12)[:, None] * (tail - head)
     curve_data = bpy.data.curves.new("UpperLine", "CURVE")
     spline = curve_data.splines.new("POLY")
@@ -283,10 +262,7 @@ def test_drawover_black_box_path(humanoid) -> None:
     for b in arm.data.bones:
         if b.name not in ("upper_arm.L", "forearm.L"):
             pinned.assign(b)
-    m = np.array(arm.matrix_world)
-    bone = arm.data.bones["forearm.L"]
-    head, tail = (m[:3, :3] @ np.array(v) + m[:3, 3] for v in (bone.head_local,
-                                                                 bone.tail_local))
+    head, tail = _bone_line(arm, "forearm.L")
     source = head + np.linspace(0.15, 0.9, 20)[:, None] * (tail - head) + [0, -0.2, 0]
     builders.apply_rotations(arm, {"forearm.L": ((0.0, 1.0, 0.0), -40.0)})
     bpy.context.view_layer.update()
@@ -303,21 +279,6 @@ def test_drawover_black_box_path(humanoid) -> None:
     drawn = builders.read_strokes(sketch)
     assert len(drawn) == 2
     np.testing.assert_allclose(drawn[0], source, atol=1e-5)
-
-
-def test_lbs_path_warns_about_a_rig_that_is_not_lbs(humanoid, capfd) -> None:
-    arm, _, stick, _ = humanoid
-    con = arm.pose.bones["forearm.L"].constraints.new("COPY_ROTATION")
-    con.target, con.subtarget = arm, "upper_arm.L"
-    con.mix_mode, con.owner_space, con.target_space = "ADD", "LOCAL", "LOCAL"
-    builders.apply_rotations(arm, {"upper_arm.L": ((0.0, 1.0, 0.0), -30.0)})
-    bpy.context.view_layer.update()
-    strokes = ab.evaluated_polylines(stick)
-    builders.add_grease_pencil("Sketch", strokes)
-    capfd.readouterr()
-    _run(bpy.ops.gesture_pose.pose_abstraction, arm, sketch="Sketch",
-         abstraction="Stick Figure", insert_keys=False)
-    assert "Black-Box Rig" in capfd.readouterr().out
 
 
 def _snapshot(arm, sketch) -> tuple[dict, bool, list[np.ndarray]]:
@@ -361,10 +322,7 @@ def test_strokes_far_from_the_character_are_refused(humanoid) -> None:
 
 def test_drawover_target_far_from_the_character_is_refused(humanoid) -> None:
     arm, _, _, _ = humanoid
-    m = np.array(arm.matrix_world)
-    bone = arm.data.bones["forearm.L"]
-    head, tail = (m[:3, :3] @ np.array(v) + m[:3, 3] for v in (bone.head_local,
-                                                                 bone.tail_local))
+    head, tail = _bone_line(arm, "forearm.L")
     source = head + np.linspace(0.15, 0.9, 25)[:, None] * (tail - head) + [0, -0.2, 0]
     sketch = builders.add_grease_pencil("Sketch", [source, source + [5.0, 0.0, 0.0]])
     before = _snapshot(arm, sketch)
@@ -465,12 +423,23 @@ def test_forearm_pointing_at_the_view_is_reported(humanoid, capfd) -> None:
 
 def test_drawover_source_seen_as_a_dot_is_refused(humanoid) -> None:
     arm, _, _, _ = humanoid
-    m = np.array(arm.matrix_world)
-    bone = arm.data.bones["forearm.L"]
-    mid = m[:3, :3] @ (0.5 * np.array(bone.head_local + bone.tail_local)) + m[:3, 3]
+    mid = 0.5 * sum(_bone_line(arm, "forearm.L"))
     dot = mid + np.array([[0.0, -0.2, 0.0], [0.002, -0.2, 0.0]])
     sketch = builders.add_grease_pencil("Sketch", [dot, dot + [0.0, 0.0, 0.3]])
     before = _snapshot(arm, sketch)
     with pytest.raises(RuntimeError, match="source stroke is only"):
         _run(bpy.ops.gesture_pose.drawover, arm, sketch="Sketch")
     _assert_unchanged(arm, sketch, before)
+
+
+def test_lbs_path_warns_about_a_rig_that_is_not_lbs(humanoid, capfd) -> None:
+    arm, _, stick, _ = humanoid
+    con = arm.pose.bones["forearm.L"].constraints.new("COPY_ROTATION")
+    con.target, con.subtarget = arm, "upper_arm.L"
+    con.mix_mode, con.owner_space, con.target_space = "ADD", "LOCAL", "LOCAL"
+    builders.apply_rotations(arm, {"upper_arm.L": ((0.0, 1.0, 0.0), -30.0)})
+    builders.add_grease_pencil("Sketch", ab.evaluated_polylines(stick))
+    capfd.readouterr()
+    _run(bpy.ops.gesture_pose.pose_abstraction, arm, sketch="Sketch",
+         abstraction="Stick Figure", insert_keys=False)
+    assert "Black-Box Rig" in capfd.readouterr().out
