@@ -21,12 +21,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..camera import Camera
-from ..exceptions import InputError, SolverError
+from ..exceptions import SolverError
 from ..rotations import exp_map, log_map, normalize, rotation_between
 from ..skeleton import Pose, Skeleton
 from .capsules import bone_masses, capsules_from_mesh
 from .environment import Environment, Seat, distance_grid, find_seat
 from .figure import CharacterFigure, character_figure, spine_joint
+from .finish import finish_pose
 from .genetic import GAConfig, genetic_search
 from .graph import SNAP_RADIUS, StickFigure, stick_figure_from_strokes
 from .kinematics import PoseModel
@@ -34,7 +35,7 @@ from .lifting import lift_population
 from .normalize import drawing_scale, normalize_figure
 from .objective import StickObjective, Weights
 from .pins import EnvPinSpec, LimbPinSpec, pin_offsets, resolve_pins
-from .refine import place_joints, refine
+from .refine import refine
 from .threads import single_thread_blas
 
 
@@ -196,43 +197,6 @@ def _distinct(joints: np.ndarray, order: np.ndarray, k: int, min_dist: float) ->
     return chosen
 
 
-def _chain_genes(model: PoseModel, joint: int) -> np.ndarray:
-    """Genes of the limb groups above a stick joint (spine and root excluded)."""
-    fig, sk = model.figure, model.skeleton
-    b = int(fig.joint_bones[joint])
-    above = set(sk.ancestors(b)) if fig.joint_at_tail[joint] else set(sk.ancestors(b)[1:])
-    genes, start = [], 6
-    for g in fig.groups:
-        m = g.bounds.shape[0]
-        if g.name not in ("spine", "head") and any(int(x) in above for x in g.bones):
-            genes += range(start, start + m)
-        start += m
-    return np.array(genes, int)
-
-
-def _spine_genes(model: PoseModel) -> np.ndarray:
-    """Genes of the spine group (empty when there is none)."""
-    start = 6
-    for g in model.figure.groups:
-        m = g.bounds.shape[0]
-        if g.name == "spine":
-            return np.arange(start, start + m)
-        start += m
-    return np.zeros(0, int)
-
-
-def _end_group_genes(model: PoseModel, joint: int) -> np.ndarray:
-    """Genes of the group of the bone starting at a stick joint (foot at an ankle)."""
-    fig, start = model.figure, 6
-    b = int(fig.joint_bones[joint])
-    for g in fig.groups:
-        m = g.bounds.shape[0]
-        if not fig.joint_at_tail[joint] and b in g.bones:
-            return np.arange(start, start + m)
-        start += m
-    return np.zeros(0, int)
-
-
 def solve_stick(inp: StickInput) -> StickResult:
     """Pose the character from a drawn stick figure (BLAS single-threaded meanwhile).
 
@@ -377,7 +341,7 @@ def _solve(inp: StickInput) -> StickResult:
     keep = _distinct(joints, np.arange(len(xs)), inp.n_suggestions, 0.03 * height)
     suggestions = []
     for i in keep:
-        x = _finish(objective, xs[i], bounds, env_pins, limb_pins)
+        x = finish_pose(objective, xs[i], bounds, env_pins, limb_pins)
         suggestions.append(_suggestion(objective, x, env_pins))
     suggestions.sort(key=lambda s: s.energy)
     if not suggestions or not np.isfinite(suggestions[0].energy):
@@ -394,63 +358,6 @@ def _solve(inp: StickInput) -> StickResult:
                        tuple(warnings))
 
 
-def _finish(objective: StickObjective, x: np.ndarray, bounds: np.ndarray, env_pins,
-            limb_pins) -> np.ndarray:
-    """Collision-free hands and feet on the environment, then pins placed exactly."""
-    model = objective.model
-    fig = model.figure
-    x = x.copy()
-    # Orientation search for the end bones resting on the environment (foot at an ankle).
-    for pin in env_pins:
-        genes = _end_group_genes(model, pin.joint)
-        if genes.size == 0 or objective.grid is None:
-            continue
-        lo, hi = bounds[genes, 0], bounds[genes, 1]
-        axes = [np.linspace(lo[k], hi[k], 5) for k in range(genes.size)]
-        grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, genes.size)
-        X = np.repeat(x[None], len(grid), 0)
-        X[:, genes] = grid
-        heads, tails, _ = model.forward(X)
-        b = np.array(sorted(set(model.skeleton.descendants(int(fig.joint_bones[pin.joint])))))
-        caps = objective.capsules
-        sel = np.isin(caps.bones, b)
-        pen = np.zeros(len(X))
-        if np.any(sel):
-            u = np.linspace(0, 1, 5)
-            pts = (heads[:, caps.bones[sel], None] * (1 - u)[:, None] +
-                   tails[:, caps.bones[sel], None] * u[:, None])
-            d, _ = objective.grid.sample(pts)
-            pen = np.sum(np.maximum(caps.radii[sel][None, :, None] - d, 0) ** 2, (1, 2))
-        e, _ = objective.evaluate(X, collision=False)
-        score = e + 100.0 * pen / (0.05 * objective.height) ** 2
-        score += 1e-3 * np.sum((grid - x[genes]) ** 2, 1)
-        x = X[int(np.argmin(score))]
-    # Attachment enforcement: pinned joints exactly on their targets (the limbs and,
-    # when several limbs are pinned, the root's translation move).
-    if env_pins:
-        genes = np.unique(np.concatenate([_chain_genes(model, p.joint) for p in env_pins] +
-                                         [np.arange(3)]))
-        x, _ = place_joints(objective, x, bounds, np.array([p.joint for p in env_pins]),
-                            np.array([p.target for p in env_pins]), genes)
-    for pin in limb_pins:
-        heads, tails, _ = model.forward(x[None])
-        J = fig.joint_positions(heads, tails)[0]
-        a, b = pin.limb
-        target = (1 - pin.s) * J[a] + pin.s * J[b]
-        genes = _chain_genes(model, pin.joint)
-        if genes.size:
-            x, res = place_joints(objective, x, bounds, np.array([pin.joint]), target[None],
-                                  genes)
-            if res.max() > 1e-6:  # out of the limb's reach: bend the spine too
-                genes = np.union1d(genes, _spine_genes(model))
-                heads, tails, _ = model.forward(x[None])
-                J = fig.joint_positions(heads, tails)[0]
-                target = (1 - pin.s) * J[a] + pin.s * J[b]
-                x, _ = place_joints(objective, x, bounds, np.array([pin.joint]),
-                                    target[None], genes)
-    return x
-
-
 def _suggestion(objective: StickObjective, x: np.ndarray, env_pins) -> Suggestion:
     model = objective.model
     heads, tails, _ = model.forward(x[None])
@@ -459,9 +366,3 @@ def _suggestion(objective: StickObjective, x: np.ndarray, env_pins) -> Suggestio
     res = np.array([np.linalg.norm(joints[p.joint] - p.target) for p in env_pins])
     return Suggestion(model.to_pose(x), x, float(e[0]),
                       {k: float(v[0]) for k, v in terms.items()}, joints, res)
-
-
-def check_input(inp: StickInput) -> None:
-    """Raise :class:`InputError` for inputs that cannot be solved."""
-    if inp.stick is None and not inp.strokes:
-        raise InputError("No stick figure: draw one in the sketch object first.")
