@@ -54,9 +54,13 @@ def _inputs(arm, sketch, cam_obj, env_coll: str | None, pinned: tuple[str, ...])
     """Read the scene like Pose Stick Figure does; returns the StickInput pieces."""
     import bpy
 
-    from gesture_pose.blender.operators.stick import _base_pose, read_stick_scene
     from gesture_pose.blender.read_mesh import read_skinned_meshes
-    from gesture_pose.blender.stick_io import environment_objects, read_environment
+    from gesture_pose.blender.stick_io import (
+        base_pose,
+        environment_objects,
+        read_environment,
+        read_stick_scene,
+    )
     from gesture_pose.core.stick.pins import EnvPinSpec, pin_candidates
 
     ctx = bpy.context
@@ -72,7 +76,7 @@ def _inputs(arm, sketch, cam_obj, env_coll: str | None, pinned: tuple[str, ...])
         for j in pinned:
             hit = pin_candidates(env, st.camera, st.stick.points[st.figure.joint(j)])[0]
             pins.append(EnvPinSpec(j, hit.point, hit.normal, "Floor"))
-    base, _ = _base_pose(st.armature, st.figure)
+    base, _ = base_pose(st.armature, st.figure)
     return st, mesh, env, tuple(pins), base
 
 

@@ -138,11 +138,8 @@ def test_pin_to_limb_and_clear(registered):
 
 
 def test_edited_stick_is_written_back_to_the_sketch(registered):
-    from gesture_pose.blender.operators.stick import (
-        GESTUREPOSE_OT_edit_stick_figure,
-        read_stick_scene,
-        write_stick,
-    )
+    from gesture_pose.blender.operators.stick import GESTUREPOSE_OT_edit_stick_figure
+    from gesture_pose.blender.stick_io import read_stick_scene, write_stick
     from gesture_pose.core.stick.edit import drag_node
 
     sc = sb.build_stick_scene("stand")

@@ -9,19 +9,16 @@ modal Edit Stick Figure (drag drawn joints, locally or along their chain).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 
 import bpy
 import numpy as np
 
-from ...core.camera import Camera
 from ...core.exceptions import InputError
 from ...core.skeleton import Pose
 from ...core.stick.edit import GLOBAL_RADIUS, drag_node
-from ...core.stick.figure import HUMANOID_JOINTS, CharacterFigure, character_figure
-from ...core.stick.graph import SNAP_RADIUS, StickFigure, stick_figure_from_strokes
+from ...core.stick.figure import HUMANOID_JOINTS, character_figure
+from ...core.stick.graph import SNAP_RADIUS
 from ...core.stick.pins import EnvPinSpec, LimbPinSpec, limb_parameter, pin_candidates
-from ...core.stick.solve import StickInput, StickResult, solve_stick
 from ..operator_utils import (
     GesturePoseOperatorMixin,
     nothing_to_do,
@@ -29,21 +26,19 @@ from ..operator_utils import (
     resolve_armature,
     resolve_sketch,
 )
-from ..read_armature import ArmatureData, read_armature
-from ..read_mesh import read_skinned_meshes
-from ..read_strokes import read_sketch, write_strokes
-from ..read_view import camera_from_context
+from ..read_armature import read_armature
 from ..stick_io import (
     environment_objects,
     read_environment,
     read_pins,
+    read_stick_scene,
     read_suggestions,
-    read_swaps,
     remove_pin,
     set_current_suggestion,
-    store_suggestions,
+    solve_scene,
     toggle_swap,
     write_pins,
+    write_stick,
 )
 from ..write_pose import apply_pose
 
@@ -52,85 +47,6 @@ LIMB_ITEMS = [(f"{p},{n}", f"{p} - {n}", f"Stick edge from {p} to {n}")
               for n, p, _ in HUMANOID_JOINTS if p]
 FACING_ITEMS = [("front", "Front", "The drawn character faces the viewer"),
                 ("back", "Back", "The drawn character turns its back to the viewer")]
-
-
-@dataclass(frozen=True)
-class StickScene:
-    """What the stick operators read from Blender, once.
-
-    Attributes:
-        armature: The armature's data.
-        camera: The view the figure was drawn in.
-        figure: The character's stick model.
-        stick: The matched drawing, user swaps applied.
-        sketch_depth: Mean view depth of the drawn strokes (to write edits back).
-    """
-
-    armature: ArmatureData
-    camera: Camera
-    figure: CharacterFigure
-    stick: StickFigure
-    sketch_depth: float
-
-
-def read_stick_scene(context, arm_obj, sketch_obj, snap_radius: float = SNAP_RADIUS,
-                     facing: str = "front") -> StickScene:
-    """Read the armature, view and drawing, and match the drawing to the character."""
-    data = read_armature(arm_obj)
-    camera = camera_from_context(context)
-    strokes = read_sketch(sketch_obj, context.scene.frame_current)
-    if not strokes:
-        raise InputError(f"'{sketch_obj.name}' has no strokes at this frame: draw a stick "
-                         "figure (spine, head, arms, legs) over the scene.")
-    pts = [camera.project(s.points_world) for s in strokes]
-    if not all(np.all(np.isfinite(p)) for p in pts):
-        raise InputError("Part of the drawing is behind the view: draw in front of the "
-                         "camera.")
-    figure, _ = character_figure(data.skeleton, data.ik_limits)
-    stick = stick_figure_from_strokes(pts, figure, snap_radius, facing)
-    for pair in sorted(read_swaps(context.scene)):
-        stick = stick.swapped(pair)
-    depth = float(np.mean(np.concatenate([camera.depth(s.points_world) for s in strokes])))
-    return StickScene(data, camera, figure, stick, depth)
-
-
-def _base_pose(data: ArmatureData, figure: CharacterFigure) -> tuple[Pose, list[int]]:
-    """Current pose with the solved bones at rest, and the solved bones."""
-    solved = sorted({figure.root_bone} | {int(b) for g in figure.groups for b in g.bones})
-    rot = data.pose.rotations.copy()
-    rot[solved] = np.eye(3)
-    trans = data.pose.translations.copy()
-    trans[figure.root_bone] = 0.0
-    return Pose(rot, trans), solved
-
-
-def solve_scene(context, op, arm_obj, sketch_obj) -> tuple[StickResult, list[str]]:
-    """Solve from the scene with the operator's settings and write the best pose."""
-    scene = context.scene
-    st = read_stick_scene(context, arm_obj, sketch_obj, op.snap_radius, op.facing)
-    data = st.armature
-    depsgraph = context.evaluated_depsgraph_get()
-    try:
-        mesh = read_skinned_meshes(arm_obj, data.skeleton, depsgraph)
-        verts, weights = mesh.rest_vertices, mesh.weights
-    except InputError:
-        verts = weights = None
-    env = read_environment(environment_objects(context, arm_obj, op.environment), depsgraph)
-    env_pins, limb_pins = read_pins(scene)
-    base, solved = _base_pose(data, st.figure)
-    inp = StickInput(
-        skeleton=data.skeleton, camera=st.camera, stick=st.stick, environment=env,
-        mesh_vertices=verts, mesh_weights=weights, ik_limits=data.ik_limits,
-        base_pose=base, env_pins=env_pins, limb_pins=limb_pins, seed=op.seed,
-        n_suggestions=op.suggestions, use_contact=op.use_contact)
-    result = solve_stick(inp)
-    best = result.suggestions[0]
-    written = apply_pose(arm_obj, data, best.pose, bones=solved, insert_keys=op.insert_keys,
-                         frame=scene.frame_current, location_bones=[st.figure.root_bone])
-    store_suggestions(scene, arm_obj.name, data.skeleton.names,
-                      [s.pose for s in result.suggestions],
-                      [s.energy for s in result.suggestions], scene.frame_current)
-    return result, written
 
 
 class _StickSolveProps:
@@ -314,16 +230,6 @@ class GESTUREPOSE_OT_pin_joint(GesturePoseOperatorMixin, bpy.types.Operator):
         more = f" (other surfaces: {', '.join(names)})" if len(hits) > 1 else ""
         report_result(self, f"Pinned {self.joint} to '{spec.object_name}'{more}")
         return {"FINISHED"}
-
-
-def write_stick(sketch_obj, stick: StickFigure, camera: Camera, depth: float, frame: int
-                ) -> None:
-    """Replace the active layer's strokes by one straight stroke per drawn stick edge."""
-    edges = stick.drawn_edges()
-    lines = [camera.unproject_at_depth(np.linspace(stick.points[a], stick.points[b], 8),
-                                       depth) for a, b in edges]
-    layer = sketch_obj.data.layers.active or sketch_obj.data.layers[0]
-    write_strokes(sketch_obj, layer.name, lines, frame=frame, replace=True)
 
 
 class GESTUREPOSE_OT_edit_stick_figure(_StickSolveProps, bpy.types.Operator):
