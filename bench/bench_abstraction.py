@@ -105,7 +105,20 @@ def stick(skel: Skeleton, chains: list[list[int]]) -> tuple[np.ndarray, np.ndarr
 
 
 def _case(bones: int, vertices: int, k: int, seed: int = 0, black_box: bool = False,
-          repeats: int = 3):
+          repeats: int = 3) -> list:
+    """One table row: ``repeats`` identical solves of a character posed from its strokes.
+
+    Args:
+        bones: Bones of the character (3 rotation parameters each).
+        vertices: About this many mesh vertices.
+        k: Representative vertices (Eq. 12).
+        seed: Seed of the known pose.
+        black_box: Differentiate the rig by finite differences instead.
+        repeats: Identical solves (the fastest and the median are reported).
+
+    Returns:
+        The row, in the order of :data:`HEADERS`.
+    """
     skel, chains = character(bones)
     cam = Camera.look_at([0, -6, 1.0], [0, 0, 1.0], width=960, height=960)
     verts, weights = tube_mesh(skel, vertices)
