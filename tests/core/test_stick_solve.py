@@ -201,3 +201,20 @@ def test_limb_pin_is_placed_exactly():
     target = 0.4 * j[fig.joint("pelvis")] + 0.6 * j[fig.joint("knee.R")]
     assert np.linalg.norm(j[fig.joint("wrist.R")] - target) < 1e-6
     assert np.all(res.suggestions[0].pin_residuals < 1e-6)
+
+
+def test_contact_dot_chooses_the_seat():
+    sk, fig, cam, stick, _, _ = _stand_problem()
+    env = chair_env()
+    seat_px = cam.project(np.array([[0.0, 0.15, 0.45 + 0.06]]))
+    dotted = StickFigure(stick.joint_names, stick.points, stick.present, stick.parents,
+                         seat_px)
+    small = GAConfig(population=128, max_generations=3)
+    with_dot = solve_stick(StickInput(sk, cam, stick=dotted, environment=env, seed=0,
+                                      use_contact=True, n_suggestions=1, ga=small,
+                                      refine_iterations=10))
+    without = solve_stick(StickInput(sk, cam, stick=dotted, environment=env, seed=0,
+                                     n_suggestions=1, ga=small, refine_iterations=10))
+    assert with_dot.seat is not None
+    assert env.object_names[with_dot.seat.object_index] == "chair"
+    assert without.seat is None  # the drawn pelvis is over the floor in front of the chair
