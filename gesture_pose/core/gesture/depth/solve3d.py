@@ -61,9 +61,9 @@ class DepthOptions:
         max_iterations: SQP iteration limit.
         tolerance: Stop when no joint moves more than this fraction of the mean link length
             (also the accepted constraint violation, same units).
-        energy_tolerance: Stop when the drawing energy decreased by less than this
+        energy_tolerance: Stop when the drawing energy changed by less than this
             fraction in the last step and the constraints hold (or their largest violation
-            no longer decreases; the unmet ones are then reported).
+            changed by less than 1%; the unmet ones are then reported).
         toward_viewer: Default side of a foreshortened bone the drawing does not decide.
         soft_penalty: Slack penalty when the hard constraints contradict each other.
     """
@@ -266,9 +266,9 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
         violation = max((float(np.max(c.violation(X), initial=0.0)) for c in constraints),
                         default=0.0)
         settled = (violation <= opts.tolerance * mean_len
-                   or violation >= 0.99 * previous_violation)
-        if settled and previous - energy <= opts.energy_tolerance * max(energy, 1e-3):
-            converged = True  # neither the drawing energy nor the violation decreases
+                   or abs(violation - previous_violation) <= 0.01 * previous_violation)
+        if settled and abs(previous - energy) <= opts.energy_tolerance * max(energy, 1e-3):
+            converged = True  # neither the drawing energy nor the violation changes
             break
         previous, previous_violation = energy, violation
         G = twist.position_jacobian(jm, X, state)
