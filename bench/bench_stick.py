@@ -4,8 +4,9 @@ Stick figures are made by projecting known poses through a camera (1.5 px noise 
 sample scene, none on the CMU poses; hands and feet left out), then reconstructed.
 
 1. **Sample scene** (the humanoid with a chair, stool, table and floor): sitting on the
-   chair, standing, leaning over the table and lying on the floor; feet (and, lying, the
-   pelvis) pinned to the floor where the eye ray through the drawn joint meets it.
+   chair, standing, leaning on the table and lying on the floor; feet (and, lying, the
+   pelvis) pinned to the floor and, leaning, the wrists to the table, where the eye ray
+   through the drawn joint meets them.
 2. **CMU poses** retargeted onto the Adventurer (``../shared/eval-assets``, skipped when
    absent), no environment and no pins.
 
@@ -47,7 +48,8 @@ def _row(case: str, stats: list) -> list:
             float(np.median(t[:, 2]))]
 
 
-PINS = {"lie": ("pelvis", "ankle.L", "ankle.R")}
+PINS = {"lie": ("pelvis", "ankle.L", "ankle.R"),
+        "lean": ("ankle.L", "ankle.R", "wrist.L", "wrist.R")}
 
 
 def _inputs(arm, sketch, cam_obj, env_coll: str | None, pinned: tuple[str, ...]):

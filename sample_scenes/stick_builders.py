@@ -43,10 +43,10 @@ STICK_POSES: dict[str, tuple[dict, dict]] = {
              "upper_arm.L": (Y, -30.0), "upper_arm.R": (X, -60.0), "forearm.R": (X, -40.0),
              "head": (X, -15.0)},
             {"pelvis": (0.4, -1.4, 0.11 - 0.93)}),
-    "lean": ({"pelvis": (X, 25.0), "thigh.L": (X, -22.0), "thigh.R": (X, -25.0),
-              "upper_arm.L": (X, -60.0), "forearm.L": (X, -10.0), "upper_arm.R": (X, -55.0),
-              "forearm.R": (X, -15.0), "head": (X, -15.0)},
-             {"pelvis": (-1.2, -0.95, -0.04)}),
+    "lean": ({"pelvis": (X, 50.0), "thigh.L": (X, -50.0), "thigh.R": (X, -50.0),
+              "upper_arm.L": (Y, 35.0), "upper_arm.R": (Y, -35.0), "forearm.L": (X, -50.0),
+              "forearm.R": (X, -50.0), "head": (X, -25.0)},
+             {"pelvis": (-1.3, 0.45, 0.0)}),
 }
 
 #: Stick joint -> (bone, use tail) on the sample humanoid.
@@ -90,7 +90,7 @@ def add_boxes(name: str, boxes: Sequence[tuple[Sequence[float], Sequence[float]]
 
 
 def add_furniture(name: str = "Environment") -> bpy.types.Collection:
-    """Floor, chair (seat 45 cm, backrest), stool (65 cm) and table (75 cm)."""
+    """Floor, chair (seat 45 cm, backrest), stool (65 cm) and table (78.5 cm)."""
     coll = bpy.data.collections.new(name)
     bpy.context.scene.collection.children.link(coll)
     add_boxes("Floor", [((-4, -4, -0.05), (4, 4, 0.0))], coll)
@@ -100,7 +100,7 @@ def add_furniture(name: str = "Environment") -> bpy.types.Collection:
     add_boxes("Chair", [((x0, y0, top - 0.05), (x1, y1, top)),
                         ((x0, y1, top), (x1, y1 + 0.05, top + 0.5))] + legs, coll)
     add_boxes("Stool", [((1.05, 0.05, 0.0), (1.4, 0.4, 0.65))], coll)
-    t = 0.75
+    t = 0.785
     table_legs = [((x, y, 0.0), (x + 0.05, y + 0.05, t - 0.04)) for x in (-1.9, -0.75)
                   for y in (-0.55, 0.1)]
     add_boxes("Table", [((-1.9, -0.55, t - 0.04), (-0.7, 0.15, t))] + table_legs, coll)
@@ -165,7 +165,7 @@ def build_stick_scene(pose: str = "sit", noise_px: float = 1.5, seed: int = 0,
     arm, mesh = builders.build_humanoid()
     env = add_furniture()
     builders.add_light()
-    target = {"lean": (-0.6, -0.4, 0.8), "lie": (0.3, -1.3, 0.3)}.get(pose, (0.0, -0.2, 0.8))
+    target = {"lean": (-1.2, 0.0, 0.8), "lie": (0.3, -1.3, 0.3)}.get(pose, (0.0, -0.2, 0.8))
     cam = builders.add_camera(target, direction=(0.45, -1.0, 0.35), distance=5.0,
                               resolution=(960, 720))
     pose_stick_humanoid(arm, pose)

@@ -296,13 +296,27 @@ class Seat:
     region: np.ndarray
 
 
-def _seat_hits(env: Environment, origin: np.ndarray, direction: np.ndarray,
-               hip_radius: float, near: float, far: float, step: float = 0.02) -> list[Hit]:
-    """Up-facing surfaces under the eye ray where the hips would rest, nearest first.
+def surfaces_under_ray(env: Environment, origin: np.ndarray, direction: np.ndarray,
+                       gap: tuple[float, float], near: float, far: float,
+                       step: float = 0.02) -> list[Hit]:
+    """Up-facing surfaces the eye ray meets or passes just above, nearest first.
 
-    The eye ray meets the seat itself when the pelvis is drawn over it; when the seat is
-    hidden behind the drawn hips (hips at the back of a seat seen from the front), the
-    point of the ray lying one hip radius above an up-facing surface is used instead.
+    The eye ray meets a seat (or table) itself when the joint is drawn over it; when the
+    surface is hidden behind the drawn joint (hips at the back of a seat seen from the
+    front, a hand at the far edge of a table), the point of the ray lying ``gap`` above an
+    up-facing surface is used instead (its hit is the surface point below it).
+
+    Args:
+        env: The environment.
+        origin: Ray origin, shape ``(3,)``.
+        direction: Unit ray direction, shape ``(3,)``.
+        gap: Allowed height ``(min, max)`` of the ray above the surface, world units.
+        near: Start of the searched part of the ray.
+        far: End of the searched part of the ray.
+        step: Ray-marching step, world units.
+
+    Returns:
+        Hits sorted by distance along the ray.
     """
     up = env.up
     out = []
@@ -326,8 +340,8 @@ def _seat_hits(env: Environment, origin: np.ndarray, direction: np.ndarray,
             hits = sub.raycast(p, -up)
             if hits:
                 h = hits[0]
-                gap = p @ up - h.point @ up
-                if 0.5 * hip_radius <= gap <= 1.5 * hip_radius:
+                height = p @ up - h.point @ up
+                if gap[0] <= height <= gap[1]:
                     out.append((ts[k], Hit(ts[k], h.point, up.copy(), int(under[h.triangle]),
                                            int(env.object_ids[under[h.triangle]]))))
     out.sort(key=lambda item: item[0])
@@ -359,7 +373,7 @@ def find_seat(env: Environment, origin: np.ndarray, direction: np.ndarray,
     up = env.up
     o, d = np.asarray(origin, float), normalize(np.asarray(direction, float))
     lo, hi = seat_range
-    for hit in _seat_hits(env, o, d, hip_radius, near, far):
+    for hit in surfaces_under_ray(env, o, d, (0.5 * hip_radius, 1.5 * hip_radius), near, far):
         height = env.height_above_floor(hit.point + up * 1e-3)
         if not lo * seated_hip_height <= height <= hi * seated_hip_height:
             continue

@@ -18,7 +18,7 @@ from ..camera import Camera
 from ..exceptions import InputError
 from ..skeleton import Skeleton
 from .capsules import Capsules
-from .environment import Environment, Hit
+from .environment import Environment, Hit, surfaces_under_ray
 from .figure import CharacterFigure
 from .graph import StickFigure
 from .objective import EnvPin, LimbPin
@@ -53,13 +53,25 @@ class LimbPinSpec:
     s: float
 
 
-def pin_candidates(env: Environment, camera: Camera, pixel: np.ndarray) -> list[Hit]:
-    """Surfaces under a drawn node: every hit of the eye ray through ``pixel``.
+def pin_candidates(env: Environment, camera: Camera, pixel: np.ndarray,
+                   max_gap: float = 0.15, far: float = 20.0) -> list[Hit]:
+    """Surfaces under a drawn node, nearest first; the user chooses among several.
 
-    Hits are nearest first; the user chooses when there are several.
+    Every surface the eye ray through ``pixel`` meets is a candidate, and so is every
+    up-facing surface it passes less than ``max_gap`` above (a hand drawn at the far edge
+    of a table, the ray then missing the table top behind it).
     """
     origins, dirs = camera.rays(np.asarray(pixel, float).reshape(1, 2))
-    return env.raycast(origins[0], dirs[0])
+    o, d = origins[0], dirs[0]
+    hits = env.raycast(o, d)
+    below = surfaces_under_ray(env, o, d, (0.0, max_gap), 0.0, far, step=0.03)
+    seen = {h.triangle for h in hits}
+    extra = []
+    for h in below:  # one candidate per surface: the first point along the ray
+        if h.triangle not in seen:
+            seen.add(h.triangle)
+            extra.append(h)
+    return sorted(hits + extra, key=lambda h: h.distance)
 
 
 def limb_parameter(stick: StickFigure, joint: str, limb: tuple[str, str]) -> float:
@@ -79,11 +91,12 @@ def pin_offsets(figure: CharacterFigure, skeleton: Skeleton, caps: Capsules,
                 weights: np.ndarray | None = None) -> np.ndarray:
     """Distance from each stick joint to the skin it rests on, world units, ``(J,)``.
 
-    For a joint starting a short end chain (an ankle over its foot, a wrist over its hand:
-    bones below it shorter than 15 % of the height in total) it is the rest height of the
-    joint above the lowest skin point of that chain; otherwise (a pelvis lying on the
-    floor, a knee on a bench, a head top) it is the capsule radius of the joint's bone or
-    its parent, whichever is larger.
+    For a joint starting a short end chain that the character stands on at rest (an ankle
+    over its foot: bones below it shorter than 15 % of the height and reaching the lowest
+    rest point) it is the rest height of the joint above that chain's lowest skin point;
+    otherwise (a wrist over a hand laid flat, a pelvis lying on the floor, a knee on a
+    bench, a head top) it is the capsule radius of the joint's bone or its parent,
+    whichever is larger.
     """
     up = figure.up
     radius = np.zeros(skeleton.n_bones)
@@ -91,6 +104,9 @@ def pin_offsets(figure: CharacterFigure, skeleton: Skeleton, caps: Capsules,
     out = np.zeros(figure.n_joints)
     pts = np.concatenate([skeleton.rest_heads, skeleton.rest_tails])
     height = float(np.ptp(pts @ up))
+    floor = float(np.min(pts @ up - np.concatenate([radius, radius])))
+    if vertices is not None and len(vertices):
+        floor = float(np.min(vertices @ up))
     for j in range(figure.n_joints):
         b = int(figure.joint_bones[j])
         p = (skeleton.rest_tails if figure.joint_at_tail[j] else skeleton.rest_heads)[b]
@@ -108,6 +124,9 @@ def pin_offsets(figure: CharacterFigure, skeleton: Skeleton, caps: Capsules,
             ends = np.concatenate([skeleton.rest_heads[below], skeleton.rest_tails[below]])
             rr = np.concatenate([radius[below], radius[below]])
             low = float(np.min(ends @ up - rr))
+        if low > floor + 0.02 * height:  # not what it stands on: lay it flat
+            out[j] = r
+            continue
         out[j] = max(float(p @ up) - low, r)
     return out
 
