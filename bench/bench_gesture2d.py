@@ -217,7 +217,7 @@ def run(quick: bool) -> list[tuple[str, list[str], list[list]]]:
              _summary(rows))]
 
 
-def render_doc_images(out_dir: Path, pose: str = "reach", size: int = 480) -> list[Path]:
+def render_doc_images(out_dir: Path, pose: str = "kick_right_leg", size: int = 480) -> list[Path]:
     """Render the docs pictures headless with Workbench on the sample humanoid.
 
     First the traced drawing over the character, then the drawing with the fitted skeleton.

@@ -178,7 +178,7 @@ def write_traced(name: str, traced: TracedContours, camera: Camera,
         bpy.context.scene.collection.objects.link(obj)
     write_strokes(obj, "Lines", list(traced.world(camera)), frame=frame, replace=True,
                   material=_material("gesture_pose traced ink", (0.0, 0.0, 0.0, 1.0)),
-                  radius=0.004)
+                  radius=0.006)
     return obj
 
 
