@@ -40,11 +40,12 @@ def _trace(arm, target="Traced Contours", **kwargs):
     return bpy.data.objects[target]
 
 
-# Measured on these clean traced drawings: median joint error 2-4% of the figure's
-# height; the limits leave room for platform noise, not for regressions.
+# Measured on these clean traced drawings (bench machine): step median 4.8% / mean 6.9%,
+# reach median 2.1% / mean 5.6% of the figure's height (the target, every joint
+# within 4%, is not met). The limits leave a margin for platform noise only.
 @pytest.mark.parametrize("pose_name,median_limit,mean_limit", [
-    ("step", 5.0, 9.0),
-    ("reach", 5.0, 9.0),
+    ("step", 6.0, 9.0),
+    ("reach", 4.0, 8.0),
 ])
 def test_fit_finds_the_joints_of_traced_poses(registered, pose_name, median_limit,
                                               mean_limit):
