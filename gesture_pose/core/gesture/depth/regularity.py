@@ -3,9 +3,10 @@
 - **Same direction (hard).** Consecutive links whose drawn directions are within 10
   degrees are read as one straight limb: their 3D unit directions are made equal,
   ``(X_c - X_b) / l_bc - (X_b - X_a) / l_ab = 0``, linear in the joint positions.
-- **Contacts (hard).** Two joints far apart in the skeleton whose drawn circles overlap
-  and whose contour pieces touch are in contact: their depths may differ by at most the
-  sum of their radii, ``|d_i - d_j| <= (r_i + r_j) / scale``.
+- **Contacts (hard).** Two joints far apart in the skeleton whose drawn circles meet
+  (without one covering the other) and whose contour pieces touch are in contact: their
+  depths may differ by at most the sum of their radii, ``|d_i - d_j| <= (r_i + r_j) /
+  scale``.
 - **Limb splines (soft).** For each limb (a joint-tree path from a branch point or the
   root to a terminal joint) a quadratic curve is fitted to the drawn joints; the joints
   within half their radius of it are attracted to the quadratic fitted to the limb's 3D
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..solving import mirror_name
 from ..types import Embedding2D, SolvingSkeleton
 from .energies import LinearTerm, ViewFrame
 from .qp import LinearConstraint
@@ -129,32 +131,59 @@ def _tree_distance(joint_parent: np.ndarray) -> np.ndarray:
     return dist
 
 
-def contact_pairs(embedding: Embedding2D, min_links: int = 4,
-                  touch: float | None = None) -> np.ndarray:
+def _mirrored(a: str, b: str) -> bool:
+    """Whether two joint names (``"<bone> head|tail"``) are left/right mirror images."""
+    bone_a, _, end_a = a.rpartition(" ")
+    bone_b, _, end_b = b.rpartition(" ")
+    return end_a == end_b and mirror_name(bone_a) == bone_b
+
+
+def contact_pairs(embedding: Embedding2D, min_links: int = 4, touch: float | None = None,
+                  overlap: tuple[float, float] = (0.6, 1.2),
+                  require_segments: bool | None = None) -> np.ndarray:
     """Joint pairs in contact in the drawing.
+
+    Two joints touch when their drawn circles meet rather than cover each other (centre
+    distance between ``overlap[0]`` and ``overlap[1]`` times the sum of the radii; one
+    circle deep inside the other is an occlusion, as the two front paws of a quadruped
+    seen from the side) and, when the fit matched contour samples to both, those samples
+    come within ``touch`` of each other (the joints' contour segments are adjacent). A
+    joint and its left/right mirror (two knees, two paws) are not taken for a contact:
+    in a side view they meet in the image while the body holds them apart.
 
     Args:
         embedding: The 2D embedding.
         min_links: Only joints at least this many links apart count (nearby joints overlap
             anyway).
-        touch: Largest gap between the joints' contour pieces, pixels (default two
-            resampling steps, 4 px if unknown); pieces are only checked when both joints
-            have some.
+        touch: Largest gap between the joints' contour pieces, pixels (default half a
+            resampling step, 1 px if unknown).
+        overlap: Range of centre distance over the sum of the radii.
+        require_segments: Accept only pairs whose contour segments are known and adjacent;
+            by default, when the embedding has contours (a drawing, not a projection).
 
     Returns:
         Joint pairs ``(i, j)``, ``i < j``, shape ``(k, 2)``.
     """
     s: SolvingSkeleton = embedding.solving
     p, r = embedding.joints2d, embedding.joint_radius
-    gap = touch if touch is not None else (2.0 * embedding.epsilon if embedding.epsilon > 0
-                                           else 4.0)
+    gap = touch if touch is not None else (0.5 * embedding.epsilon if embedding.epsilon > 0
+                                           else 1.0)
     dist = _tree_distance(np.asarray(s.joint_parent))
     d2 = np.linalg.norm(p[:, None] - p[None], axis=-1)
-    cand = np.argwhere(np.triu((d2 < r[:, None] + r[None]) & (dist >= min_links), 1))
+    reach = r[:, None] + r[None]
+    meet = (d2 >= overlap[0] * reach) & (d2 < overlap[1] * reach)
+    cand = np.argwhere(np.triu(meet & (dist >= min_links), 1))
     segs = embedding.joint_segments
+    names = s.joint_bones
+    if require_segments is None:
+        require_segments = len(embedding.contours) > 0
     keep = []
     for i, j in cand:
-        if len(segs) > max(i, j) and len(segs[i]) and len(segs[j]):
+        if len(names) == len(p) and _mirrored(names[i], names[j]):
+            continue
+        if require_segments or (len(segs) > max(i, j) and len(segs[i]) and len(segs[j])):
+            if len(segs) <= max(i, j) or not len(segs[i]) or not len(segs[j]):
+                continue  # no contour evidence of the contact
             sep = np.min(np.linalg.norm(segs[i][:, None] - segs[j][None], axis=-1))
             if sep > gap:
                 continue

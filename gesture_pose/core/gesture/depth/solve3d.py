@@ -64,6 +64,8 @@ class DepthOptions:
         energy_tolerance: Stop when the drawing energy changed by less than this
             fraction in the last step and the constraints hold (or their largest violation
             changed by less than 1%; the unmet ones are then reported).
+        merit_weight: Weight of the constraint violation (per mean link length) against
+            the drawing energy in the step-halving line search.
         toward_viewer: Default side of a foreshortened bone the drawing does not decide.
         soft_penalty: Slack penalty when the hard constraints contradict each other.
     """
@@ -81,6 +83,7 @@ class DepthOptions:
     max_iterations: int = 100
     tolerance: float = 1e-4
     energy_tolerance: float = 1e-4
+    merit_weight: float = 10.0
     toward_viewer: bool = True
     soft_penalty: float = 1e7
 
@@ -212,6 +215,35 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
     return setup, X_rest, contacts, names
 
 
+def _violation(constraints: list[LinearConstraint], X: np.ndarray) -> float:
+    """Summed violation of the joint-space constraints at ``X``, world units."""
+    return float(sum(np.sum(c.violation(X)) for c in constraints))
+
+
+def _line_search(skeleton: Skeleton, setup: _Setup, pose: Pose, state, delta: np.ndarray,
+                 merit: float, weight: float, halvings: int = 4, slack: float = 0.1
+                 ) -> tuple[Pose, float]:
+    """Take the QP step, halved while the merit ``E + weight * violation`` grows too much.
+
+    The merit may grow by the fraction ``slack`` (the first steps trade drawing energy for
+    feasibility; later ones use ``slack = 0``). The QPs only see a linearization: far from
+    a solution a full step can overshoot and the iterates cycle.
+
+    Returns:
+        The new pose and the step fraction taken.
+    """
+    t = 1.0
+    for _ in range(halvings + 1):
+        trial = twist.apply_twists(skeleton, setup.jmap, pose, state, t * delta)
+        X, _ = twist.joint_positions(skeleton, setup.jmap, trial)
+        value = sum(term.value(X) for term in setup.terms) \
+            + weight * _violation(setup.all_constraints(X), X)
+        if value <= merit * (1.0 + slack) + 1e-12:
+            return trial, t
+        t *= 0.5
+    return trial, 2.0 * t
+
+
 def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
                  pose: Pose | None = None, *, lock_rotation: np.ndarray | None = None,
                  ik_limits: np.ndarray | None = None, pinned: np.ndarray | None = None,
@@ -300,8 +332,11 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
         active = sol.active
         if sol.status != "solved" and not any(w.startswith("Some QP") for w in warnings):
             warnings.append(f"Some QP steps ended with OSQP status '{sol.status}'.")
-        current = twist.apply_twists(skeleton, jm, current, state, sol.delta)
-        move = np.abs(G @ sol.delta.ravel()).max() if G.size else 0.0
+        current, step = _line_search(skeleton, setup, current, state, sol.delta,
+                                     energy + opts.merit_weight * _violation(constraints, X)
+                                     / mean_len, opts.merit_weight / mean_len,
+                                     slack=0.1 if it <= 20 else 0.0)
+        move = step * np.abs(G @ sol.delta.ravel()).max() if G.size else 0.0
         if move < opts.tolerance * mean_len:
             converged = True
             break
