@@ -284,6 +284,9 @@ def test_contacts_keep_touching_joints_at_one_depth():
     assert gap <= reach + 1e-6
     free = solve_pose3d(sk, emb, cam, options=DepthOptions(use_contacts=False))
     assert abs((free.joints3d[tip] - free.joints3d[base]) @ FORWARD) > reach + 0.05
+    # Circles where one covers most of the other are an occlusion, not a contact.
+    covering = project_embedding(sk, solving, pose, cam, radius=0.3)
+    assert [base, tip] not in regularity.contact_pairs(covering).tolist()
 
 
 def test_spline_term_is_zero_on_quadratic_depths_only():
