@@ -48,10 +48,6 @@ def _row(case: str, stats: list) -> list:
             float(np.median(t[:, 2]))]
 
 
-PINS = {"lie": ("pelvis", "ankle.L", "ankle.R"),
-        "lean": ("ankle.L", "ankle.R", "wrist.L", "wrist.R")}
-
-
 def _inputs(arm, sketch, cam_obj, env_coll: str | None, pinned: tuple[str, ...]):
     """Read the scene like Pose Stick Figure does; returns the StickInput pieces."""
     import bpy
@@ -103,7 +99,7 @@ def sample_table(quick: bool) -> tuple[str, list[str], list[list]]:
             sb.pose_stick_humanoid(arm, "rest")
             st, mesh, env, pins, base = _inputs(arm, sc["sketch"], sc["camera"],
                                                 "Environment",
-                                                PINS.get(pose, ("ankle.L", "ankle.R")))
+                                                sb.STICK_PINS[pose])
             truth = np.array([truth_d[n] for n in st.figure.joint_names])
             res = solve_stick(StickInput(
                 st.armature.skeleton, st.camera, stick=st.stick, environment=env,

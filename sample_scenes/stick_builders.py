@@ -49,6 +49,12 @@ STICK_POSES: dict[str, tuple[dict, dict]] = {
              {"pelvis": (-1.3, 0.45, 0.0)}),
 }
 
+#: Joints pinned (eye ray through the drawn joint, nearest surface) for each pose.
+STICK_PINS: dict[str, tuple[str, ...]] = {
+    "sit": ("ankle.L", "ankle.R"), "stand": ("ankle.L", "ankle.R"),
+    "lie": ("pelvis", "ankle.L", "ankle.R"),
+    "lean": ("ankle.L", "ankle.R", "wrist.L", "wrist.R")}
+
 #: Stick joint -> (bone, use tail) on the sample humanoid.
 STICK_JOINTS = {
     "pelvis": ("pelvis", False), "neck": ("neck", False), "head": ("head", True),
@@ -228,8 +234,9 @@ def render_png(path: str | Path, size: tuple[int, int] = (480, 360)) -> Path:
 def render_stick_images(outdir: str | Path, pose: str = "sit") -> list[Path]:
     """Pictures for the docs: the drawing over the scene, then the solved pose.
 
-    Builds the sample scene, pins both ankles to the floor, runs Pose Stick Figure and
-    renders before and after (``stick_<pose>_input.png``, ``stick_<pose>_result.png``).
+    Builds the sample scene, pins the joints of :data:`STICK_PINS`, runs Pose Stick
+    Figure and renders before and after (``stick_<pose>_input.png``,
+    ``stick_<pose>_result.png``).
     """
     outdir = Path(outdir)
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -247,7 +254,7 @@ def render_stick_images(outdir: str | Path, pose: str = "sit") -> list[Path]:
     sketch.scale = (1.0, 1.0, 1.0)
     out = [render_png(outdir / f"stick_{pose}_input.png")]
     with bpy.context.temp_override(active_object=arm, object=arm, selected_objects=[arm]):
-        for joint in ("ankle.L", "ankle.R"):
+        for joint in STICK_PINS[pose]:
             bpy.ops.gesture_pose.pin_joint(armature=arm.name, sketch=sketch.name, joint=joint)
         bpy.ops.gesture_pose.pose_stick_figure(armature=arm.name, sketch=sketch.name)
     out.append(render_png(outdir / f"stick_{pose}_result.png"))
