@@ -33,7 +33,7 @@ from .graph import SNAP_RADIUS, StickFigure, stick_figure_from_strokes
 from .kinematics import PoseModel
 from .lifting import lift_population
 from .normalize import drawing_scale, normalize_figure
-from .objective import StickObjective, Weights
+from .objective import EnvPin, StickObjective, Weights
 from .pins import EnvPinSpec, LimbPinSpec, pin_offsets, resolve_pins
 from .refine import refine
 from .threads import single_thread_blas
@@ -302,11 +302,13 @@ def _solve(inp: StickInput) -> StickResult:
         after = sk.descendants(int(figure.joint_bones[p.joint]))
         if not figure.joint_at_tail[p.joint]:
             env_caps &= ~np.isin(caps.bones, after)
+    # Seated, the hips rest on the seat's plane (Eq. 10 on the pelvis; free to slide).
+    seat_pin = () if seat is None else (EnvPin(pelvis_j, root, up.copy()),)
     objective = StickObjective(
         model=model, camera=cam, stick=stick, height=height,
         masses=bone_masses(sk, caps), capsules=caps, env_capsules=env_caps, grid=grid,
-        support=np.array(support).reshape(-1, 3), env_pins=env_pins, limb_pins=limb_pins,
-        weights=inp.weights, up=up)
+        support=np.array(support).reshape(-1, 3), env_pins=env_pins + seat_pin,
+        limb_pins=limb_pins, weights=inp.weights, up=up)
     bounds = model.bounds(root - base_root, root_range)
     timings["placement"] = time.perf_counter() - t0
 
