@@ -186,10 +186,15 @@ class PoseModel:
         Returns:
             ``(heads (P, n, 3), tails (P, n, 3), frames (P, n, 3, 3))`` in world space.
         """
+        heads, tails, frames, _ = self._forward(genes)
+        return heads, tails, frames
+
+    def _forward(self, genes: np.ndarray) -> tuple[np.ndarray, ...]:
+        """:meth:`forward` plus the group bones' rotation vectors ``(P, entries, 3)``."""
         sk = self.skeleton
         x = np.atleast_2d(genes)
         P, n = x.shape[0], sk.n_bones
-        Q, _ = self.local_rotations(x)
+        Q, phi = self.local_rotations(x)
         rest = sk.rest_frames
         local = rest @ Q
         t = np.broadcast_to(self.base.translations, (P, n, 3)).copy()
@@ -211,7 +216,7 @@ class PoseModel:
                 rel = sk.rest_heads[ci] - sk.rest_heads[cp] + offset[:, ci]
                 heads[:, ci] = heads[:, cp] + np.einsum("pnij,pnj->pni", carry, rel)
         tails = heads + frames[..., 1] * sk.lengths[:, None]
-        return heads, tails, frames
+        return heads, tails, frames, phi
 
     def jacobian(self, genes: np.ndarray) -> tuple[np.ndarray, ...]:
         """Heads, tails and their analytic Jacobians for one gene vector.
@@ -223,9 +228,7 @@ class PoseModel:
             ``(heads (n, 3), tails (n, 3), J_heads (n, 3, G), J_tails (n, 3, G))``.
         """
         x = np.asarray(genes, float)
-        heads, tails, frames = (a[0] for a in self.forward(x[None]))
-        _, phi = self.local_rotations(x[None])
-        phi = phi[0]
+        heads, tails, frames, phi = (a[0] for a in self._forward(x[None]))
         n, G = self.skeleton.n_bones, x.size
         # World axis of every (bone, gene) entry, in group order.
         e = self._e_bone
