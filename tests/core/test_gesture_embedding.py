@@ -79,7 +79,7 @@ def test_solving_skeleton_joints_and_exclusion():
     assert sol.joint_link_bone[sol.head_joint[k]] == -1
     assert sol.joint_parent[sol.head_joint[k]] == sol.tail_joint[0]
     assert np.all(sol.joint_parent < np.arange(sol.n_joints))
-    # A bone shorter than 1.5 steps (2% of the rest diagonal) is left out and its parent's
+    # A bone shorter than 2 steps (2% of the rest diagonal) is left out and its parent's
     # tail is no longer terminal.
     pts = np.array([[0, 0, 0], [0, 0, 1.0], [0, 0, 2.0], [0, 0, 2.02]])
     chain = chain_skeleton(pts)

@@ -57,7 +57,7 @@ class GestureParams:
     preprocess: PreprocessParams = field(default_factory=PreprocessParams)
     costs: CostParams = field(default_factory=CostParams)
     refine: RefineParams = field(default_factory=RefineParams)
-    min_bone_epsilons: float = 1.5
+    min_bone_epsilons: float = 2.0
     max_candidates: int = 40
     pool_candidates: int = 400
     coarse_candidates: int = 120

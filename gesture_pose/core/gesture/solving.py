@@ -18,7 +18,7 @@ from .types import SolvingSkeleton
 
 
 def select_bones(skeleton: Skeleton, override: np.ndarray | None = None,
-                 min_bone_epsilons: float = 1.5, epsilon_fraction: float = 0.02) -> np.ndarray:
+                 min_bone_epsilons: float = 2.0, epsilon_fraction: float = 0.02) -> np.ndarray:
     """Boolean mask of the solving bones, shape ``(n,)``.
 
     Args:
@@ -119,7 +119,7 @@ def build_solving_skeleton(skeleton: Skeleton, mask: np.ndarray) -> SolvingSkele
 
 
 def solving_skeleton(skeleton: Skeleton, override: np.ndarray | None = None,
-                     min_bone_epsilons: float = 1.5) -> SolvingSkeleton:
+                     min_bone_epsilons: float = 2.0) -> SolvingSkeleton:
     """Select the solving bones and build their joint tree (see :func:`select_bones`)."""
     return build_solving_skeleton(skeleton, select_bones(skeleton, override, min_bone_epsilons))
 
