@@ -64,6 +64,31 @@ def rotation_between3(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
     ]), angle
 
 
+def mm3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b`` for ``(3, 3)`` matrices on Python floats.
+
+    numpy hands even 3x3 products to BLAS, whose thread pool makes each call several times
+    slower on a busy machine; the per-joint loop stays clear of it.
+    """
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a.tolist()
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b.tolist()
+    return np.array([
+        [a00 * b00 + a01 * b10 + a02 * b20, a00 * b01 + a01 * b11 + a02 * b21,
+         a00 * b02 + a01 * b12 + a02 * b22],
+        [a10 * b00 + a11 * b10 + a12 * b20, a10 * b01 + a11 * b11 + a12 * b21,
+         a10 * b02 + a11 * b12 + a12 * b22],
+        [a20 * b00 + a21 * b10 + a22 * b20, a20 * b01 + a21 * b11 + a22 * b21,
+         a20 * b02 + a21 * b12 + a22 * b22]])
+
+
+def mv3(a: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``a @ v`` for a ``(3, 3)`` matrix and a 3-vector on Python floats (see :func:`mm3`)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a.tolist()
+    x, y, z = v.tolist()
+    return np.array([a00 * x + a01 * y + a02 * z, a10 * x + a11 * y + a12 * z,
+                     a20 * x + a21 * y + a22 * z])
+
+
 def _unit(v: np.ndarray) -> np.ndarray:
     x, y, z = v.tolist()
     n = math.sqrt(x * x + y * y + z * z)
@@ -73,7 +98,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
 def twist_about_y(q: np.ndarray) -> np.ndarray:
     """Twist factor ``T`` of ``q = S T`` (swing-twist about the bone's y axis), ``(3, 3)``."""
     swing, _ = rotation_between3(_Y, q[:, 1])
-    return swing.T @ q
+    return mm3(swing.T, q)
 
 
 @dataclass
@@ -129,13 +154,13 @@ class ChainState:
         p = sk.parents[bone]
         if p < 0 or not sk.inherit_rotation[bone]:
             return sk.rest_frames[bone] if p >= 0 else rel_rot
-        return self.frames[p] @ rel_rot
+        return mm3(self.frames[p], rel_rot)
 
     def refresh_head(self, bone: int) -> None:
         """Recompute ``bone``'s world head from its (current) parent."""
         off = self.offsets[bone]
         p = self.skeleton.parents[bone]
-        self.heads[bone] = off if p < 0 else self.heads[p] + self.frames[p] @ off
+        self.heads[bone] = off if p < 0 else self.heads[p] + mv3(self.frames[p], off)
 
     def refresh(self, bone: int) -> None:
         """Recompute ``bone``'s world head, tail and frame from its (current) parent."""
@@ -145,7 +170,7 @@ class ChainState:
     def set_rotation(self, bone: int, local: np.ndarray) -> None:
         """Set a bone's local rotation and its world frame and tail (head unchanged)."""
         self.rotations[bone] = local
-        frame = self.carry(bone) @ local
+        frame = mm3(self.carry(bone), local)
         self.frames[bone] = frame
         self.tails[bone] = self.heads[bone] + frame[:, 1] * self.lengths[bone]
 
@@ -174,12 +199,12 @@ def aimed_rotation(cs: ChainState, bone: int, seg_end: np.ndarray,
     cur_dir = _unit(seg_end - head)
     new_dir = _unit(new_end - head)
     angle = math.acos(max(-1.0, min(1.0, float(cur_dir @ new_dir))))
-    target_local = carry.T @ new_dir
+    target_local = mv3(carry.T, new_dir)
     if float(frame[:, 1] @ cur_dir) > 1.0 - 1e-9:  # the segment runs along the bone's y
         swing, _ = rotation_between3(_Y, target_local)
-        return swing @ twist_about_y(q), angle
-    delta, _ = rotation_between3(q @ (frame.T @ cur_dir), target_local)
-    return delta @ q, angle
+        return mm3(swing, twist_about_y(q)), angle
+    delta, _ = rotation_between3(mv3(q, mv3(frame.T, cur_dir)), target_local)
+    return mm3(delta, q), angle
 
 
 @dataclass(frozen=True)
@@ -380,14 +405,14 @@ def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: Cha
         if spec.stop_when_exhausted and fixed is None and pos > 0:
             if sampled.length - s_prev < 0.5 * trial.projected:
                 break
-        offset_local = cs.frames[bone].T @ (end - cs.heads[bone])
+        offset_local = mv3(cs.frames[bone].T, end - cs.heads[bone])
         if trial.rotation is None:
             skipped.append(bone)
         else:
             cs.set_rotation(bone, trial.rotation)
         if not trial.depth_kept:
             depth_moved.append(bone)
-        new_end = cs.heads[bone] + cs.frames[bone] @ offset_local
+        new_end = cs.heads[bone] + mv3(cs.frames[bone], offset_local)
         land = np.array(view.project_point(*new_end.tolist()))
         s = trial.param
         if options.tracking is Tracking.POSITION and options.feature_extraction:
