@@ -214,13 +214,15 @@ class Skeleton:
         """
         rel_rot, rel_off, steps = self._fk[:3]
         q = np.asarray(pose.rotations, dtype=float)
-        frames = rel_rot @ q  # final for roots: R_i Q_i
+        # einsum, not matmul: numpy hands batched 3x3 products to BLAS, whose thread pool
+        # makes each per-depth call slow on a busy machine.
+        frames = np.einsum("nij,njk->nik", rel_rot, q)  # final for roots: R_i Q_i
         offsets = rel_off + np.einsum("nij,nj->ni", rel_rot, np.asarray(pose.translations,
                                                                         dtype=float))
         heads = offsets.copy()  # final for roots: r_i + R_i t_i
         for kids, pars, free in steps:
             heads[kids] = heads[pars] + np.einsum("nij,nj->ni", frames[pars], offsets[kids])
-            frames[kids] = frames[pars] @ frames[kids]
+            frames[kids] = np.einsum("nij,njk->nik", frames[pars], frames[kids])
             if free.size:
                 frames[free] = self.rest_frames[free] @ q[free]
         tails = heads + frames[:, :, 1] * self._fk[3][:, None]
