@@ -313,11 +313,13 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
             try:
                 sol = solve_qp(problem)
             except SolverError as err:
-                if soften or "infeasible" not in err.details.get("status", ""):
+                if soften:
                     raise
                 soften = True
-                warnings.append("The drawing's depth cues contradict each other; the "
-                                "constraints were softened.")
+                why = ("contradict each other" if "infeasible" in err.details.get("status", "")
+                       else f"stalled OSQP ({err.details.get('status', '?')})")
+                warnings.append(f"The drawing's depth cues {why}; the constraints were "
+                                "softened.")
                 problem = build_qp(setup.terms, constraints, dof, X.ravel(), G,
                                    alpha=opts.alpha, kappa=setup.kappa, soften=True,
                                    rho=opts.soft_penalty)
