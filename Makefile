@@ -23,7 +23,7 @@ venv: $(STAMP)
 test: $(STAMP)
 	$(VENV_PY) -m pytest -q tests
 
-SCENES := $(addprefix sample_scenes/,humanoid.blend tentacle.blend quadruped.blend abstraction.blend)
+SCENES := $(addprefix sample_scenes/,humanoid.blend tentacle.blend quadruped.blend abstraction.blend stick.blend)
 
 # Rebuild the sample scenes on request; `make demo` only builds those that are missing.
 sample-scenes: $(STAMP)

@@ -120,9 +120,10 @@ def main(argv: list[str]) -> int:
 
 def mode_scenes() -> list[tuple[str, Callable[[Path], Path]]]:
     """Scenes that belong to one posing mode: ``(file stem, saver(path) -> path)``."""
-    from sample_scenes import abstraction_builders
+    from sample_scenes import abstraction_builders, stick_builders
 
-    return [("abstraction", abstraction_builders.save_abstraction_scene)]
+    return [("abstraction", abstraction_builders.save_abstraction_scene),
+            ("stick", stick_builders.save_stick_scene)]
 
 
 if __name__ == "__main__":
