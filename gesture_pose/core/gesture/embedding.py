@@ -85,17 +85,6 @@ def posed_joints(solving: SolvingSkeleton, skeleton: Skeleton, pose: Pose) -> np
     return out
 
 
-def _penalized(cands: JointCandidates, zones: list[np.ndarray], radius: float,
-               penalty: float) -> JointCandidates:
-    """Candidates with ``penalty`` added near forbidden positions ``zones`` (each (2,))."""
-    if not zones:
-        return cands
-    z = np.stack(zones)
-    near = (np.linalg.norm(cands.positions[:, None] - z[None], axis=2) < radius).any(axis=1)
-    return JointCandidates(cands.positions, cands.radii, cands.side, cands.origin, cands.group,
-                           cands.unary + penalty * near, cands.aligned)
-
-
 def _near(cands: JointCandidates, centre: np.ndarray, reach: float, count: int
           ) -> JointCandidates:
     """The ``count`` cheapest candidates within ``reach`` of ``centre``."""
@@ -104,7 +93,7 @@ def _near(cands: JointCandidates, centre: np.ndarray, reach: float, count: int
 
 
 def _two_pass(problem, contour: list[JointCandidates], mid_r: np.ndarray, params,
-              zones: dict[int, list[np.ndarray]], cache: dict | None = None,
+              cache: dict | None = None,
               restrict: dict[int, np.ndarray] | None = None
               ) -> tuple[list[JointCandidates], np.ndarray, float]:
     """Coarse DP (many candidates, pairwise factors) then fine DP with triplets.
@@ -114,7 +103,6 @@ def _two_pass(problem, contour: list[JointCandidates], mid_r: np.ndarray, params
         contour: Contour candidates of every joint.
         mid_r: Middle radius of every joint (for grid candidates), pixels, ``(J,)``.
         params: Embedding parameters.
-        zones: Per joint, positions whose neighbourhood is penalized.
         cache: Pairwise tables of earlier solves.
         restrict: Joints forced near a position (terminal enumeration): only their contour
             candidates within 1.5 epsilon of it, no grid.
@@ -129,15 +117,13 @@ def _two_pass(problem, contour: list[JointCandidates], mid_r: np.ndarray, params
                for j, c in enumerate(contour)]
     area = float(np.prod(np.maximum(d.bbox[1] - d.bbox[0], eps)))
     spacing = max(eps, np.sqrt(area / params.coarse_grid))
-    pen = params.overlap_penalty
     coarse = []
     for j, c in enumerate(contour):
         pool = best(consolidate(c, params.coarse_cell * eps), params.coarse_candidates)
         grid = grid_candidates(d, spacing, mid_r[j], params=params.costs)
         grid = grid.take(np.zeros(0, int)) if j in restrict and len(pool) else grid
-        coarse.append(_penalized(JointCandidates.concat([pool, grid]), zones.get(j, []),
-                                 2 * eps, pen))
-    coarse = _with_rigid(problem, coarse, zones, pen)
+        coarse.append(JointCandidates.concat([pool, grid]))
+    coarse = _with_rigid(problem, coarse)
     # Coarse candidates are up to a cell off: widen the length tolerances accordingly.
     slack = params.coarse_cell * eps / d.diagonal
     loose = replace(problem.params,
@@ -153,9 +139,8 @@ def _two_pass(problem, contour: list[JointCandidates], mid_r: np.ndarray, params
         near = _near(c, first.positions[j], params.fine_reach * eps, params.max_candidates)
         grid = grid_candidates(d, eps, mid_r[j], first.positions[j], reach, params.costs)
         grid = grid.take(np.zeros(0, int)) if j in restrict and len(near) else grid
-        fine.append(_penalized(JointCandidates.concat([near, grid]), zones.get(j, []),
-                               2 * eps, pen))
-    fine = _with_rigid(problem, fine, zones, pen)
+        fine.append(JointCandidates.concat([near, grid]))
+    fine = _with_rigid(problem, fine)
     labels, energy = solve_tree(build_energy(problem, fine, cache=cache))
     return fine, labels, energy
 
@@ -200,7 +185,7 @@ def _enumerate_terminals(problem, base, contour: list[JointCandidates], mid_r: n
             trials += 1
             trial = dict(restrict)
             trial[int(j)] = site
-            cands, labels, _ = _two_pass(problem, contour, mid_r, params, {}, cache, trial)
+            cands, labels, _ = _two_pass(problem, contour, mid_r, params, cache, trial)
             new = configuration(cands, labels)
             got = assign_contours(base, new)
             if (len(got.overlaps) <= len(assign.overlaps)
@@ -213,8 +198,7 @@ def _enumerate_terminals(problem, base, contour: list[JointCandidates], mid_r: n
     return conf, trials
 
 
-def _with_rigid(problem, cands: list[JointCandidates], zones, pen: float
-                ) -> list[JointCandidates]:
+def _with_rigid(problem, cands: list[JointCandidates]) -> list[JointCandidates]:
     """Add to every rigidly attached joint its parent's candidates moved by the offset.
 
     A hip or shoulder head sits at a fixed offset from the pelvis or chest; deriving its
@@ -234,8 +218,7 @@ def _with_rigid(problem, cands: list[JointCandidates], zones, pen: float
         side = np.zeros(len(moved), int)
         shifted = JointCandidates(moved, r, side, -np.ones(len(moved), int),
                                   -np.ones(len(moved), int), cost, aligned)
-        out[j] = JointCandidates.concat([cands[j], _penalized(shifted, zones.get(j, []),
-                                                              2 * d.epsilon, pen)])
+        out[j] = JointCandidates.concat([cands[j], shifted])
     return out
 
 
@@ -293,9 +276,8 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
     timings["candidates"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    zones: dict[int, list[np.ndarray]] = {}
     cache: dict = {}
-    cands, labels, energy = _two_pass(problem, contour, mid_r, params, zones, cache)
+    cands, labels, energy = _two_pass(problem, contour, mid_r, params, cache)
     timings["mrf"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -316,7 +298,7 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
             break
         blocked |= block_overlaps(base, assign)
         problem = replace(base, blocked=blocked.copy())
-        cands, labels, energy = _two_pass(problem, contour, mid_r, params, {}, cache)
+        cands, labels, energy = _two_pass(problem, contour, mid_r, params, cache)
         conf = configuration(cands, labels)
     (n_bad, _, _), conf, problem = best_sol
     conf, trials = _enumerate_terminals(problem, base, contour, mid_r, params, cache, conf)
