@@ -53,7 +53,7 @@ class CostParams:
     sigma_angle: float = np.pi / 6
     conform_angle: float = np.radians(30.0)
     rigid_sigma: float = 0.03
-    w_direction: float = 0.5
+    w_direction: float = 0.75
 
 
 def circle_alignment(drawing: Drawing, centres: np.ndarray, radii: np.ndarray,
