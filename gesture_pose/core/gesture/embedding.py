@@ -354,7 +354,8 @@ def _result(problem, conf: JointCandidates, refine_info: dict, timings: dict,
     visible = conf.origin >= 0
     if not visible.all():
         hidden = [s.joint_bones[j] for j in np.flatnonzero(~visible)]
-        warnings.append(f"Joints placed as hidden (no contour): {', '.join(hidden)}.")
+        warnings.append(f"Joints placed without contour evidence (hidden, or set by a rigid "
+                        f"offset): {', '.join(hidden)}.")
     timings["total"] = sum(timings.values())
     return Embedding2D(
         solving=s, joints2d=conf.positions.copy(), joint_visible=visible,
