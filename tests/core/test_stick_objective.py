@@ -183,3 +183,36 @@ def test_distance_grid_on_a_plane():
     assert np.allclose(d, pts[:, 2], atol=0.01)
     assert np.allclose(grid.sample(np.array([[1.0, -1.0, 0.6]]))[0], 0.2)  # clamped
     assert np.allclose(g, [[0, 0, 1], [0, 0, 1]], atol=0.1)
+
+
+def test_residuals_square_to_the_energy_and_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(11)
+    obj, truth = problem(rng)
+    X = truth + rng.normal(scale=0.4, size=(4, truth.size))
+    X[:, 2] -= 0.3  # sink into the seat: collision residuals are active
+    e, terms = obj.evaluate(X)
+    r = obj.residuals(X)
+    assert terms["collision"].max() > 0
+    assert np.allclose(np.sum(r**2, 1), e, rtol=1e-12, atol=1e-12)
+    for x in X[:2]:
+        r1, J = obj.residuals_and_jacobian(x)
+        assert np.allclose(r1, obj.residuals(x[None])[0], atol=1e-14)
+        h = 1e-6
+        num = (obj.residuals(x + h * np.eye(x.size)) - obj.residuals(x - h * np.eye(x.size)))
+        num = (num / (2 * h)).T
+        # Environment penetrations use the nearest surface sample (piecewise): compare the
+        # rows that are smooth, i.e. everything but the environment samples.
+        smooth = r1.size - int(np.sum(obj.env_capsules)) * 5
+        assert np.allclose(num[:smooth], J[:smooth], rtol=1e-4, atol=1e-5)
+
+
+def test_distance_limit_keeps_penetrations():
+    rng = np.random.default_rng(2)
+    grid = distance_grid(chair_env(), [0, 0, 0.8], 1.2, 0.05)
+    pts = rng.uniform([-0.5, -0.5, 0.0], [0.5, 0.6, 0.6], size=(400, 3))
+    d0, g0 = grid.sample(pts)
+    d1, g1 = grid.sample(pts, limit=0.08)
+    near = d0 < 0.08
+    assert near.sum() > 20 and (~near).sum() > 20
+    assert np.array_equal(d0[near], d1[near]) and np.array_equal(g0[near], g1[near])
+    assert np.all(d1[~near] >= 0.08)

@@ -145,21 +145,25 @@ class DistanceGrid:
         tree = cKDTree(self.samples) if len(self.samples) else None
         object.__setattr__(self, "_tree", tree)
 
-    def sample(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def sample(self, points: np.ndarray, limit: float | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
         """Distance and its gradient at points.
 
         Args:
             points: World points, shape ``(..., 3)``.
+            limit: Only distances below this are looked up (the k-d search prunes more;
+                penetration tests only need distances under the largest radius).
 
         Returns:
             ``(distance (...), gradient (..., 3))``; ``max_distance`` and zero gradient
-            where no surface is closer.
+            where no surface is closer than ``min(limit, max_distance)``.
         """
         p = np.asarray(points, float)
         flat = p.reshape(-1, 3)
         if self._tree is None:
             return (np.full(p.shape[:-1], self.max_distance), np.zeros(p.shape))
-        d, idx = self._tree.query(flat, distance_upper_bound=self.max_distance, workers=1)
+        bound = self.max_distance if limit is None else min(limit, self.max_distance)
+        d, idx = self._tree.query(flat, distance_upper_bound=bound, workers=1)
         near = np.isfinite(d)
         grad = np.zeros_like(flat)
         diff = flat[near] - self.samples[idx[near]]

@@ -89,7 +89,7 @@ def finish_pose(objective: StickObjective, x: np.ndarray, bounds: np.ndarray,
             u = np.linspace(0, 1, 5)
             pts = (heads[:, caps.bones[sel], None] * (1 - u)[:, None] +
                    tails[:, caps.bones[sel], None] * u[:, None])
-            d, _ = objective.grid.sample(pts)
+            d, _ = objective.grid.sample(pts, limit=1.001 * caps.radii[sel].max())
             pen = np.sum(np.maximum(caps.radii[sel][None, :, None] - d, 0) ** 2, (1, 2))
         e, _ = objective.evaluate(X, collision=False)
         score = e + 100.0 * pen / (0.05 * objective.height) ** 2

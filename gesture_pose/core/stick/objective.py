@@ -27,7 +27,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from ..camera import Camera
-from .capsules import Capsules, axis_samples, body_collision
+from .capsules import Capsules, axis_samples, body_collision, segment_closest
 from .environment import DistanceGrid
 from .graph import StickFigure
 from .kinematics import PoseModel
@@ -256,7 +256,7 @@ class StickObjective:
             u = axis_samples(5)
             pts = (heads[:, bones, None] * (1 - u)[:, None] + tails[:, bones, None] *
                    u[:, None])
-            d, gd = self.grid.sample(pts)
+            d, gd = self.grid.sample(pts, limit=1.001 * radii.max())
             pen = np.maximum(radii[None, :, None] - d, 0.0)
             energy = energy + np.sum(pen**2, axis=(1, 2))
             if grad:
@@ -309,6 +309,150 @@ class StickObjective:
             gh += w.collision * gh_c
             gt += w.collision * gt_c
         return total, terms, gh, gt
+
+    def residuals(self, genes: np.ndarray, collision: bool = True) -> np.ndarray:
+        """Weighted residuals ``r`` of a population with ``sum(r**2) == E`` per individual.
+
+        Every term is a sum of squares (Eqs. 4-11), so the energy is ``|r|^2`` with
+        ``r`` the square roots of the weights times: the projected direction differences
+        and joint offsets (Eqs. 4-6), the centre of mass' offset from the support polygon
+        (Eqs. 7-8), the pin distances (Eqs. 9-10) and the capsule penetrations (Eq. 11).
+
+        Args:
+            genes: Gene vectors, shape ``(P, G)``.
+            collision: Include Eq. 11.
+
+        Returns:
+            Residuals, shape ``(P, R)``.
+        """
+        heads, tails, _ = self.model.forward(genes)
+        fig, w = self.model.figure, self.weights
+        P = heads.shape[0]
+        joints = fig.joint_positions(heads, tails)
+        q, _ = project_jacobian(self.camera, joints)
+        a, b = self._edges[:, 0], self._edges[:, 1]
+        u = q[:, b] - q[:, a]
+        uh = u / np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-9)
+        present = self.stick.present
+        off = (q[:, present] - self.stick.points[present]) / self._px_scale
+        out = [np.sqrt(w.projection) * (uh - self._dirs).reshape(P, -1),
+               np.sqrt(w.projection * w.position) * off.reshape(P, -1)]
+        if len(self._poly):
+            m = self.masses / self.masses.sum()
+            com = np.einsum("n,pnd->pd", m, 0.5 * (heads + tails))
+            bal = polygon_offset(com @ self._ground, self._poly)
+            out.append(np.sqrt(w.balance) * bal / self.height)
+        for pin in self.env_pins:
+            dist = (joints[:, pin.joint] - pin.target) @ pin.normal
+            out.append(np.sqrt(w.attachment) * dist[:, None] / self.height)
+        for pin in self.limb_pins:
+            i, k = pin.limb
+            d = joints[:, pin.joint] - (1 - pin.s) * joints[:, i] - pin.s * joints[:, k]
+            out.append(np.sqrt(w.attachment) * d / self.height)
+        if collision:
+            c = np.sqrt(w.collision) / (0.05 * self.height)
+            caps = self.capsules
+            if len(caps.pairs):
+                ba, bb = caps.bones[caps.pairs[:, 0]], caps.bones[caps.pairs[:, 1]]
+                _, _, d = segment_closest(heads[:, ba], tails[:, ba], heads[:, bb],
+                                          tails[:, bb])
+                rr = caps.radii[caps.pairs[:, 0]] + caps.radii[caps.pairs[:, 1]]
+                out.append(c * np.maximum(rr - d, 0.0))
+            if self.grid is not None and np.any(self.env_capsules):
+                bones = caps.bones[self.env_capsules]
+                radii = caps.radii[self.env_capsules]
+                s = axis_samples(5)
+                pts = (heads[:, bones, None] * (1 - s)[:, None] +
+                       tails[:, bones, None] * s[:, None])
+                d, _ = self.grid.sample(pts, limit=1.001 * radii.max())
+                out.append(c * np.maximum(radii[None, :, None] - d, 0.0).reshape(P, -1))
+        return np.concatenate(out, axis=1)
+
+    def residuals_and_jacobian(self, x: np.ndarray, collision: bool = True
+                               ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`residuals` of one gene vector ``(G,)`` and their analytic Jacobian.
+
+        Chains each residual's derivative with respect to joints, bone ends or the
+        centre of mass with :meth:`.kinematics.PoseModel.jacobian`; capsule penetrations
+        are differentiated at fixed closest points (Danskin), like the energy's gradient.
+
+        Returns:
+            ``(r (R,), dr/dx (R, G))``, ``r`` in the order of :meth:`residuals`.
+        """
+        fig, w = self.model.figure, self.weights
+        heads, tails, Jh, Jt = self.model.jacobian(x)
+        G = x.size
+        bones, at_tail = fig.joint_bones, fig.joint_at_tail
+        joints = np.where(at_tail[:, None], tails[bones], heads[bones])
+        Jj = np.where(at_tail[:, None, None], Jt[bones], Jh[bones])  # (J, 3, G)
+        q, Jq = project_jacobian(self.camera, joints)
+        dq = np.einsum("jkd,jdg->jkg", Jq, Jj)
+        a, b = self._edges[:, 0], self._edges[:, 1]
+        u = q[b] - q[a]
+        n = np.maximum(np.linalg.norm(u, axis=-1), 1e-9)
+        uh = u / n[:, None]
+        P = (np.eye(2) - uh[:, :, None] * uh[:, None, :]) / n[:, None, None]
+        present = self.stick.present
+        off = (q[present] - self.stick.points[present]) / self._px_scale
+        sp, spp = np.sqrt(w.projection), np.sqrt(w.projection * w.position)
+        rs = [sp * (uh - self._dirs).ravel(), spp * off.ravel()]
+        js = [sp * np.einsum("eij,ejg->eig", P, dq[b] - dq[a]).reshape(-1, G),
+              spp * dq[present].reshape(-1, G) / self._px_scale]
+        if len(self._poly):
+            m = self.masses / self.masses.sum()
+            com = m @ (0.5 * (heads + tails))
+            dcom = np.einsum("n,ndg->dg", m, 0.5 * (Jh + Jt))
+            c2 = com @ self._ground
+            h = 1e-7
+            o = polygon_offset(np.stack([c2, c2 + [h, 0.0], c2 + [0.0, h]]), self._poly)
+            do = np.stack([o[1] - o[0], o[2] - o[0]], 1) / h  # (2, 2): d off / d c2
+            sb = np.sqrt(w.balance) / self.height
+            rs.append(sb * o[0])
+            js.append(sb * do @ self._ground.T @ dcom)
+        sa = np.sqrt(w.attachment) / self.height
+        for pin in self.env_pins:
+            rs.append(sa * np.atleast_1d((joints[pin.joint] - pin.target) @ pin.normal))
+            js.append(sa * (pin.normal @ Jj[pin.joint])[None])
+        for pin in self.limb_pins:
+            i, k = pin.limb
+            rs.append(sa * (joints[pin.joint] - (1 - pin.s) * joints[i] - pin.s * joints[k]))
+            js.append(sa * (Jj[pin.joint] - (1 - pin.s) * Jj[i] - pin.s * Jj[k]))
+        if collision:
+            c = np.sqrt(w.collision) / (0.05 * self.height)
+            caps = self.capsules
+            if len(caps.pairs):
+                ba, bb = caps.bones[caps.pairs[:, 0]], caps.bones[caps.pairs[:, 1]]
+                p0, p1, q0, q1 = heads[ba], tails[ba], heads[bb], tails[bb]
+                s_, t_, d = segment_closest(p0, p1, q0, q1)
+                rr = caps.radii[caps.pairs[:, 0]] + caps.radii[caps.pairs[:, 1]]
+                pen = np.maximum(rr - d, 0.0)
+                jac = np.zeros((len(pen), G))
+                on = np.flatnonzero(pen > 0)
+                if on.size:
+                    s1, t1 = s_[on, None], t_[on, None]
+                    diff = p0[on] + s1 * (p1[on] - p0[on]) - q0[on] - t1 * (q1[on] - q0[on])
+                    un = diff / np.maximum(d[on], 1e-12)[:, None]
+                    dd = ((1 - s1)[..., None] * Jh[ba[on]] + s1[..., None] * Jt[ba[on]] -
+                          (1 - t1)[..., None] * Jh[bb[on]] - t1[..., None] * Jt[bb[on]])
+                    jac[on] = -np.einsum("qd,qdg->qg", un, dd)
+                rs.append(c * pen)
+                js.append(c * jac)
+            if self.grid is not None and np.any(self.env_capsules):
+                cb = caps.bones[self.env_capsules]
+                radii = caps.radii[self.env_capsules]
+                sm = axis_samples(5)
+                pts = heads[cb, None] * (1 - sm)[:, None] + tails[cb, None] * sm[:, None]
+                d, gd = self.grid.sample(pts, limit=1.001 * radii.max())
+                pen = np.maximum(radii[:, None] - d, 0.0)
+                jac = np.zeros(pen.shape + (G,))
+                ci, mi = np.nonzero(pen > 0)
+                if ci.size:
+                    dp = ((1 - sm[mi])[:, None, None] * Jh[cb[ci]] +
+                          sm[mi][:, None, None] * Jt[cb[ci]])
+                    jac[ci, mi] = -np.einsum("kd,kdg->kg", gd[ci, mi], dp)
+                rs.append(c * pen.ravel())
+                js.append(c * jac.reshape(-1, G))
+        return np.concatenate(rs), np.concatenate(js, axis=0)
 
     def evaluate(self, genes: np.ndarray, collision: bool = True) -> tuple[np.ndarray, dict]:
         """Energies of a population, ``(P, G) -> ((P,), {term: (P,)})``."""
