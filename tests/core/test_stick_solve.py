@@ -10,7 +10,14 @@ from gesture_pose.core.stick.capsules import capsules_from_mesh
 from gesture_pose.core.stick.edit import drag_node
 from gesture_pose.core.stick.environment import find_seat
 from gesture_pose.core.stick.figure import humanoid_figure
-from gesture_pose.core.stick.genetic import GAConfig, gaussian_mutation, genetic_search, sbx
+from gesture_pose.core.stick.genetic import (
+    GAConfig,
+    gaussian_mutation,
+    genetic_search,
+    merge,
+    row_hash,
+    sbx,
+)
 from gesture_pose.core.stick.graph import StickFigure
 from gesture_pose.core.stick.kinematics import PoseModel
 from gesture_pose.core.stick.normalize import normalize_figure
@@ -51,6 +58,24 @@ def test_gaussian_mutation_rate_and_scale():
     assert abs(y[hit].std() - 1.0) < 0.05  # 0.1 of the range 10
     clipped = gaussian_mutation(x, np.tile([-0.01, 0.01], (10, 1)), rng, 1.0, 10.0)
     assert np.all(np.abs(clipped) <= 0.01)
+
+
+def test_merge_keeps_the_best_distinct_individuals():
+    rng = np.random.default_rng(4)
+    pop = rng.random((300, 12))
+    pop[200:] = pop[:100] + 1e-7  # near-copies of the first 100 (same 0.1 % cell or next)
+    energies = rng.random(300)
+    spans = np.ones(12)
+    kept, e = merge(pop, energies, 250, spans)
+    key = np.round(kept / 1e-3).astype(np.int64)
+    assert len(np.unique(key, axis=0)) == len(kept)  # no two kept rows share a cell
+    assert np.all(np.diff(e) >= 0) and e[0] == energies.min()
+    # The row-wise reference: the same rows as sorting whole rows would keep.
+    order = np.argsort(energies, kind="stable")
+    ref_key = np.round(pop[order] / 1e-3).astype(np.int64)
+    _, first = np.unique(ref_key, axis=0, return_index=True)
+    assert np.array_equal(kept, pop[order[np.sort(first)][:250]])
+    assert len(np.unique(row_hash(ref_key))) == len(np.unique(ref_key, axis=0))
 
 
 def test_genetic_search_minimizes_a_shifted_sphere_deterministically():

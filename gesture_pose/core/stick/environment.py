@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 
 from ..exceptions import InputError
 from ..rotations import normalize
+from .genetic import row_hash
 
 UP_ANGLE = np.radians(30.0)
 SEAT_RANGE = (0.5, 1.5)
@@ -206,7 +207,7 @@ def distance_grid(env: Environment, center: np.ndarray, half_size: float,
     hi = np.asarray(center, float) + half_size
     samples = surface_samples(env, spacing, lo, hi)
     samples = samples[np.all((samples >= lo) & (samples <= hi), 1)]
-    _, first = np.unique(np.floor(samples / (0.5 * spacing)).astype(np.int64), axis=0,
+    _, first = np.unique(row_hash(np.floor(samples / (0.5 * spacing)).astype(np.int64)),
                          return_index=True)
     return DistanceGrid(samples[np.sort(first)], spacing, max_distance)
 

@@ -122,6 +122,22 @@ def _tournament(energies: np.ndarray, n: int, rng: np.random.Generator) -> np.nd
     return np.where(energies[i] <= energies[j], i, j)
 
 
+def row_hash(key: np.ndarray) -> np.ndarray:
+    """One 64-bit hash per row of an integer array ``(N, G) -> (N,)``.
+
+    Rows are compared through their hashes (``np.unique`` on one integer per row is much
+    faster than on whole rows); a collision, about one in 2^64, would only merge two
+    rows.
+    """
+    mult = (np.arange(key.shape[1], dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15) +
+            np.uint64(0xBF58476D1CE4E5B9)) | np.uint64(1)
+    h = np.zeros(key.shape[0], np.uint64)
+    for k in range(key.shape[1]):
+        h = (h ^ (key[:, k].astype(np.uint64) * mult[k])) * np.uint64(0x94D049BB133111EB)
+        h ^= h >> np.uint64(31)
+    return h
+
+
 def merge(pop: np.ndarray, energies: np.ndarray, size: int, spans: np.ndarray
           ) -> tuple[np.ndarray, np.ndarray]:
     """Keep the ``size`` best distinct individuals of a merged population.
@@ -130,7 +146,7 @@ def merge(pop: np.ndarray, energies: np.ndarray, size: int, spans: np.ndarray
     """
     order = np.argsort(energies, kind="stable")
     key = np.round(pop[order] / (1e-3 * np.maximum(spans, 1e-12))).astype(np.int64)
-    _, first = np.unique(key, axis=0, return_index=True)
+    _, first = np.unique(row_hash(key), return_index=True)
     keep = order[np.sort(first)][:size]
     return pop[keep], energies[keep]
 
