@@ -38,6 +38,11 @@ from .pins import EnvPinSpec, LimbPinSpec, pin_offsets, resolve_pins
 from .refine import refine
 from .threads import single_thread_blas
 
+#: A candidate whose energy after the short refinement exceeds ``HOPELESS_RATIO`` times
+#: the best one's plus ``HOPELESS_MARGIN`` is not refined further.
+HOPELESS_RATIO = 10.0
+HOPELESS_MARGIN = 0.05
+
 
 @dataclass(frozen=True)
 class StickInput:
@@ -331,7 +336,11 @@ def _solve(inp: StickInput) -> StickResult:
     joints = figure.joint_positions(heads, tails)
     best = [order[k] for k in _distinct(joints, np.arange(len(order)), inp.n_suggestions,
                                          0.03 * height)]
+    # A candidate far above the best after the short refinement (a limb through the
+    # body or the seat) stays an alternative as it is: its long refinement is skipped.
+    e_best = min(first[i].energy for i in best)
     refined = [refine(objective, first[i].x, bounds, max_iterations=inp.refine_iterations)
+               if first[i].energy <= HOPELESS_RATIO * e_best + HOPELESS_MARGIN else first[i]
                for i in best]
     timings["refine"] = time.perf_counter() - t0
 
