@@ -26,6 +26,7 @@ from ..camera import Camera
 from ..exceptions import InputError
 from ..skeleton import Skeleton
 from ..stroke import Stroke
+from ..threads import single_thread_blas
 from .checks import end_on_message
 from .coarsening import Coarsening
 from .correspondences import (
@@ -241,11 +242,12 @@ def solve_abstraction(problem: AbstractionProblem,
         SolverError: An update QP could not be solved.
     """
     opt = SolveOptions() if options is None else options
-    if opt.correspondence != IN_ORDER_CLOSEST:
-        return _solve_phase(problem, opt)
-    first = _solve_phase(problem, replace(opt, correspondence=IN_ORDER))
-    second = _solve_phase(replace(problem, start=first.pose),
-                          replace(opt, correspondence=CLOSEST))
+    with single_thread_blas():  # BLAS's thread hand-offs cost more than these small solves
+        if opt.correspondence != IN_ORDER_CLOSEST:
+            return _solve_phase(problem, opt)
+        first = _solve_phase(problem, replace(opt, correspondence=IN_ORDER))
+        second = _solve_phase(replace(problem, start=first.pose),
+                              replace(opt, correspondence=CLOSEST))
     return replace(
         second, iterations=first.iterations + second.iterations,
         initial_residual_px=first.initial_residual_px,
