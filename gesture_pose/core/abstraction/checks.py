@@ -146,10 +146,14 @@ def end_on_bones(camera: Camera, heads: np.ndarray, tails: np.ndarray, bones: np
 def end_on_message(names: Sequence[str], after: bool) -> str:
     """The warning for bones seen end-on (before or after the solve)."""
     listed = ", ".join(names)
-    when = "ends up pointing" if after else "points"
+    one = len(names) == 1
+    when = ("ends up pointing" if one else "end up pointing") if after else (
+        "points" if one else "point")
+    it, points, its, is_ = ("it", "points", "its", "is") if one else ("they", "point",
+                                                                   "their", "are")
     return (f"{listed} {when} almost along the view axis: the drawing cannot tell whether "
-            "it points towards or away from you, so its depth is a guess. Check it from "
-            "another view, or draw it from a view where it is seen side-on.")
+            f"{it} {points} towards or away from you, so {its} depth is a guess. Check "
+            f"from another view, or draw from a view where {it} {is_} seen side-on.")
 
 
 def constrained_bones(jac_matched: np.ndarray, space: ParameterSpace,
