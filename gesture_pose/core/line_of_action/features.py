@@ -10,6 +10,7 @@ the arc-length position to the stroke point nearest where the joint actually pro
 from __future__ import annotations
 
 import math
+from bisect import bisect_left
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +28,8 @@ class SampledStroke:
         curvature: Unsigned curvature at the samples, shape ``(m,)``, 1/pixels.
         step: Sampling step, pixels.
         length: Arc length of the last sample, pixels.
+        peaks: Indices of the curvature's local maxima (plateaus included), ascending.
+        curvature_sum: Prefix sums of the curvature, shape ``(m + 1,)``.
     """
 
     params: np.ndarray
@@ -34,13 +37,17 @@ class SampledStroke:
     curvature: np.ndarray
     step: float
     length: float
+    peaks: tuple[int, ...] = ()
+    curvature_sum: np.ndarray | None = None
 
     @classmethod
     def from_stroke(cls, stroke: Stroke, step: float) -> SampledStroke:
         """Sample ``stroke`` every ``step`` pixels of arc length (``length``: its end)."""
         s = stroke.sample_params(step)
-        return cls(s, stroke.evaluate(s), np.abs(stroke.curvature(s)), float(s[1] - s[0]),
-                   float(s[-1]))
+        kappa = np.abs(stroke.curvature(s))
+        inner = np.flatnonzero((kappa[1:-1] >= kappa[:-2]) & (kappa[1:-1] >= kappa[2:])) + 1
+        return cls(s, stroke.evaluate(s), kappa, float(s[1] - s[0]), float(s[-1]),
+                   tuple(inner.tolist()), np.concatenate([[0.0], np.cumsum(kappa)]))
 
     def at(self, s: float) -> np.ndarray:
         """Point at arc length ``s`` (linear between the evenly spaced samples), ``(2,)``."""
@@ -80,13 +87,21 @@ def feature_param(
         reach = min(guess, sampled.length - guess)
         lo, hi = guess - reach, guess + reach
     idx = sampled.window(lo, hi)
-    kappa = sampled.curvature[idx]
-    if kappa.size < 3:
+    i0, i1 = idx.start, idx.stop
+    if i1 - i0 < 3:
         return None
-    best = int(np.argmax(kappa))
-    if kappa[best] < max(min_curvature, 2.0 * float(kappa.mean())):
+    # The window's maximum is at one of its ends or at a local maximum inside it; the
+    # mean comes from prefix sums. Plain Python: this runs once per joint.
+    kappa = sampled.curvature
+    best = i0 if kappa[i0] >= kappa[i1 - 1] else i1 - 1
+    peaks = sampled.peaks
+    for p in peaks[bisect_left(peaks, i0 + 1):bisect_left(peaks, i1 - 1)]:
+        if kappa[p] > kappa[best] or (kappa[p] == kappa[best] and p < best):
+            best = p
+    mean = float(sampled.curvature_sum[i1] - sampled.curvature_sum[i0]) / (i1 - i0)
+    if kappa[best] < max(min_curvature, 2.0 * mean):
         return None
-    return float(sampled.params[idx][best])
+    return float(sampled.params[best])
 
 
 def renormalize_param(

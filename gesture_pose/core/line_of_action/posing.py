@@ -219,6 +219,8 @@ class Trial:
         projected: Projected segment length, pixels.
         depth_kept: False when the joint could not keep its depth (its parent moved too far
             in depth) and kept its current one instead.
+        on_stroke: The joint lands exactly on the stroke at ``param`` (a ray-circle
+            crossing), so Eq. 3's search would return ``param`` itself.
     """
 
     rotation: np.ndarray | None
@@ -227,6 +229,7 @@ class Trial:
     target: np.ndarray
     projected: float
     depth_kept: bool = True
+    on_stroke: bool = False
 
 
 @dataclass(frozen=True)
@@ -332,16 +335,17 @@ class _Walker:
         kept = self.plane or depth == original
         lp = self.projected_length(head, seg_end)
         s, tgt, feature = self.target(s_prev, lp, landed_prev)
+        on_stroke = False
         if self.crossing and not feature:
             root = stroke_circle_crossing(self.view, self.rays, head, length, depth, s_prev, s)
             if root is not None and abs(root - s) <= max(lp, 2.0 * self.sampled.step):
-                s, tgt = root, self.sampled.at(root)
+                s, tgt, on_stroke = root, self.sampled.at(root), True
         placed = place_joint(self.view, head, seg_end, length, tgt, depth,
                              self.opt.view_axis_tolerance)
         if placed.skipped:
             return Trial(None, 0.0, s, tgt, lp, kept)
         rot, angle = aimed_rotation(self.cs, bone, seg_end, placed.position)
-        return Trial(rot, angle, s, tgt, lp, kept)
+        return Trial(rot, angle, s, tgt, lp, kept, on_stroke)
 
 
 def _segment_ends(skeleton: Skeleton, cs: ChainState, bone: int,
@@ -415,7 +419,8 @@ def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: Cha
         new_end = cs.heads[bone] + mv3(cs.frames[bone], offset_local)
         land = np.array(view.project_point(*new_end.tolist()))
         s = trial.param
-        if options.tracking is Tracking.POSITION and options.feature_extraction:
+        if (options.tracking is Tracking.POSITION and options.feature_extraction
+                and not trial.on_stroke):
             s = renormalize_param(sampled, land, s, max(trial.projected / 3.0,
                                                         2.0 * sampled.step))
         bones.append(bone)
