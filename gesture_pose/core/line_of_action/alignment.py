@@ -167,6 +167,8 @@ class StrokeRays:
         directions: Unit ray directions, shape ``(m, 3)``.
         origin_depth: View depth of each origin, shape ``(m,)``.
         rate: Depth gained per unit along each ray, shape ``(m,)``.
+        coeffs: Per ray, with its point at depth ``D`` written ``q(D) = A + D B``: the
+            terms ``(|A|^2, A.B, |B|^2, A, B)`` of ``|q(D) - c|^2``, shape ``(m, 9)``.
     """
 
     params: np.ndarray
@@ -174,12 +176,18 @@ class StrokeRays:
     directions: np.ndarray
     origin_depth: np.ndarray
     rate: np.ndarray
+    coeffs: np.ndarray
 
     @classmethod
     def through(cls, view: ViewOps, params: np.ndarray, pixels: np.ndarray) -> StrokeRays:
         """Rays through stroke samples ``pixels`` (shape ``(m, 2)``) at arc lengths ``params``."""
         origins, directions = view.rays(pixels)
-        return cls(params, origins, directions, view.depth(origins), directions @ view.forward)
+        depth, rate = view.depth(origins), directions @ view.forward
+        b = directions / rate[:, None]
+        a = origins - depth[:, None] * b
+        coeffs = np.column_stack([np.einsum("ij,ij->i", a, a), np.einsum("ij,ij->i", a, b),
+                                  np.einsum("ij,ij->i", b, b), a, b])
+        return cls(params, origins, directions, depth, rate, coeffs)
 
 
 def stroke_circle_crossing(
@@ -214,9 +222,13 @@ def stroke_circle_crossing(
     i1 = min(math.floor((2.0 * s_near - s_from + 4.0) / step) + 2, len(params))
     if i1 - i0 < 2:
         return None
-    t = (plane_depth - rays.origin_depth[i0:i1]) / rays.rate[i0:i1]
-    rel = rays.origins[i0:i1] - np.array(centre) + t[:, None] * rays.directions[i0:i1]
-    f = np.sqrt(np.einsum("ij,ij->i", rel, rel)) - radius
+    # |q(D) - c|^2 - r^2 for every ray at once, as one product with the precomputed terms.
+    d = plane_depth
+    cx, cy, cz = centre
+    w = np.array([1.0, 2.0 * d, d * d, -2.0 * cx, -2.0 * cy, -2.0 * cz, -2.0 * d * cx,
+                  -2.0 * d * cy, -2.0 * d * cz])
+    f = np.einsum("ij,j->i", rays.coeffs[i0:i1], w) + (cx * cx + cy * cy + cz * cz
+                                                       - radius * radius)
     inside = f < 0.0
     cross = np.flatnonzero(inside[:-1] != inside[1:])
     if cross.size == 0:
