@@ -1,6 +1,7 @@
 """The "Gesture Pose" sidebar panel; each mode adds its own sub-panel under it.
 
-Sub-panels set ``bl_parent_id = "VIEW3D_PT_gesture_pose"`` in their own module.
+A mode's sub-panel, in the mode's own module, mixes in :class:`GesturePoseSubPanel`
+(before ``bpy.types.Panel``) and sets its ``bl_idname``, ``bl_label`` and ``draw``.
 """
 
 from __future__ import annotations
@@ -28,6 +29,15 @@ class VIEW3D_PT_gesture_pose(bpy.types.Panel):
         layout.use_property_decorate = False
         layout.prop(settings, "armature", icon="ARMATURE_DATA")
         layout.prop(settings, "sketch", icon="OUTLINER_OB_GREASEPENCIL")
+
+
+class GesturePoseSubPanel:
+    """Where every mode's sub-panel goes: under the Gesture Pose tab's main panel."""
+
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Gesture Pose"
+    bl_parent_id = VIEW3D_PT_gesture_pose.bl_idname
 
 
 CLASSES = (VIEW3D_PT_gesture_pose,)

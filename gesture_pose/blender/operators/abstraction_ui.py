@@ -5,6 +5,7 @@ from __future__ import annotations
 import bpy
 
 from ..abstraction_io import abstraction_collections
+from ..panel import GesturePoseSubPanel
 from .abstraction import GESTUREPOSE_OT_drawover, GESTUREPOSE_OT_pose_abstraction
 
 
@@ -13,15 +14,11 @@ def _is_abstraction(_self, coll: bpy.types.Collection) -> bool:
     return any(o.type in {"MESH", "CURVE", "GREASEPENCIL"} for o in coll.all_objects)
 
 
-class VIEW3D_PT_gesture_pose_abstraction(bpy.types.Panel):
+class VIEW3D_PT_gesture_pose_abstraction(GesturePoseSubPanel, bpy.types.Panel):
     """Sketch abstractions and draw-over posing."""
 
     bl_idname = "VIEW3D_PT_gesture_pose_abstraction"
     bl_label = "Sketch Abstraction"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Gesture Pose"
-    bl_parent_id = "VIEW3D_PT_gesture_pose"
 
     def draw(self, context: bpy.types.Context) -> None:
         """The abstraction picker and both operators."""

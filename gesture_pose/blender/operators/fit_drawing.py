@@ -33,6 +33,7 @@ from ..operator_utils import (
     resolve_armature,
     resolve_sketch,
 )
+from ..panel import GesturePoseSubPanel
 from ..read_armature import ArmatureData, read_armature
 from ..read_mesh import read_skinned_meshes
 from ..read_strokes import read_sketch, strokes_to_2d, write_strokes
@@ -258,15 +259,11 @@ class GESTUREPOSE_OT_trace_contours(GesturePoseOperatorMixin, bpy.types.Operator
         return {"FINISHED"}
 
 
-class VIEW3D_PT_gesture_pose_gesture(bpy.types.Panel):
+class VIEW3D_PT_gesture_pose_gesture(GesturePoseSubPanel, bpy.types.Panel):
     """Gesture drawings: fit the skeleton to the drawing, make test drawings."""
 
     bl_idname = "VIEW3D_PT_gesture_pose_gesture"
     bl_label = "Gesture"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Gesture Pose"
-    bl_parent_id = "VIEW3D_PT_gesture_pose"
 
     def draw(self, context: bpy.types.Context) -> None:
         """Fit Drawing and Trace Contours buttons."""

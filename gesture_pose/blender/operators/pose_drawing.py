@@ -30,6 +30,7 @@ from ..operator_utils import (
     resolve_armature,
     resolve_sketch,
 )
+from ..panel import GesturePoseSubPanel
 from ..read_armature import read_armature
 from ..read_view import camera_from_context
 from ..write_pose import apply_pose
@@ -217,15 +218,11 @@ class GESTUREPOSE_OT_flip_depth(GesturePoseOperatorMixin, bpy.types.Operator):
         return {"FINISHED"}
 
 
-class VIEW3D_PT_gesture_pose_drawing(bpy.types.Panel):
+class VIEW3D_PT_gesture_pose_drawing(GesturePoseSubPanel, bpy.types.Panel):
     """Gesture drawings: the main Pose button and Flip Depth."""
 
     bl_idname = "VIEW3D_PT_gesture_pose_drawing"
     bl_label = "Pose from Drawing"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Gesture Pose"
-    bl_parent_id = "VIEW3D_PT_gesture_pose"
     bl_order = 0
     bl_options = {"HIDE_HEADER"}
 

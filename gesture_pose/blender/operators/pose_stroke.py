@@ -22,6 +22,7 @@ from ..operator_utils import (
     resolve_armature,
     resolve_sketch,
 )
+from ..panel import GesturePoseSubPanel
 from ..read_armature import ArmatureData, read_armature
 from ..read_strokes import SketchStroke, read_sketch, remove_strokes, strokes_to_2d
 from ..read_view import camera_from_context
@@ -174,15 +175,11 @@ class GESTUREPOSE_OT_pose_stroke(GesturePoseOperatorMixin, bpy.types.Operator):
         return {"FINISHED"}
 
 
-class VIEW3D_PT_gesture_pose_stroke(bpy.types.Panel):
+class VIEW3D_PT_gesture_pose_stroke(GesturePoseSubPanel, bpy.types.Panel):
     """Line-of-action strokes: pose or refine one limb per stroke."""
 
     bl_idname = "VIEW3D_PT_gesture_pose_stroke"
     bl_label = "Line of Action"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Gesture Pose"
-    bl_parent_id = "VIEW3D_PT_gesture_pose"
 
     def draw(self, context: bpy.types.Context) -> None:
         """Buttons for the newest stroke and for all strokes."""
