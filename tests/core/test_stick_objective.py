@@ -23,6 +23,7 @@ from gesture_pose.core.stick.objective import (
     polygon_offset,
     project_jacobian,
 )
+from gesture_pose.core.stick.refine import refine, refine_least_squares
 from tests.core.test_stick_figure import humanoid_skeleton
 
 
@@ -216,3 +217,20 @@ def test_distance_limit_keeps_penetrations():
     assert near.sum() > 20 and (~near).sum() > 20
     assert np.array_equal(d0[near], d1[near]) and np.array_equal(g0[near], g1[near])
     assert np.all(d1[~near] >= 0.08)
+
+
+def test_least_squares_refinement_converges_faster_than_lbfgs():
+    rng = np.random.default_rng(3)
+    obj, truth = problem(rng, with_grid=False)
+    bounds = obj.model.bounds(np.zeros(3), 0.5)
+    x0 = np.clip(truth + rng.normal(scale=0.05, size=truth.size), *bounds.T)
+    e0 = obj.evaluate(x0[None])[0][0]
+    gn = refine_least_squares(obj, x0, bounds, max_iterations=30)
+    lb = refine(obj, x0, bounds, max_iterations=60)  # about twice the evaluations
+    assert gn.evaluations <= 30 and np.all((gn.x >= bounds[:, 0]) & (gn.x <= bounds[:, 1]))
+    assert np.isclose(gn.energy, obj.evaluate(gn.x[None])[0][0])
+    # The pins disagree with the drawing, so the minimum is well above zero (about 1.14).
+    assert gn.energy < 0.6 * e0
+    assert gn.energy < lb.energy - 0.02
+    longer = refine_least_squares(obj, gn.x, bounds, max_iterations=60)
+    assert gn.energy - longer.energy < 1e-3 * gn.energy  # already converged

@@ -108,7 +108,8 @@ def refine_least_squares(objective: StickObjective, x0: np.ndarray, bounds: np.n
 
 def place_joints(objective: StickObjective, x0: np.ndarray, bounds: np.ndarray,
                  joints: np.ndarray, targets: np.ndarray, genes: np.ndarray,
-                 tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+                 tol: float = 1e-9, max_evaluations: int = 60
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """Move ``genes`` so that stick ``joints`` land exactly on ``targets``.
 
     This is the attachment enforcement: a bounded least-squares solve from ``x0``.
@@ -121,6 +122,7 @@ def place_joints(objective: StickObjective, x0: np.ndarray, bounds: np.ndarray,
         targets: Target positions, shape ``(k, 3)``.
         genes: Indices of the genes allowed to move, shape ``(m,)``.
         tol: Stop once every coordinate of every joint is this close (world units).
+        max_evaluations: Limit on residual evaluations of each method.
 
     Returns:
         ``(x, residuals (k,))``: new genes and the remaining distances (world units).
@@ -157,12 +159,17 @@ def place_joints(objective: StickObjective, x0: np.ndarray, bounds: np.ndarray,
 
     lo, hi = bounds[genes, 0], bounds[genes, 1]
     z0 = np.clip(x0[genes], lo, hi)
-    try:
-        res = least_squares(fun, z0, jac=jac, bounds=(lo, hi), xtol=1e-12, ftol=1e-14,
-                            gtol=1e-12, max_nfev=60)
-        z = res.x
-    except _OnTargetError as hit:
-        z = hit.z
+    # The trust-region reflective method moves the genes least; where it crawls (bounds
+    # nearly active) the dogleg method finishes from where it stopped.
+    z = z0
+    for method in ("trf", "dogbox"):
+        try:
+            res = least_squares(fun, z, jac=jac, bounds=(lo, hi), method=method, xtol=1e-12,
+                                ftol=1e-14, gtol=1e-12, max_nfev=max_evaluations)
+            z = res.x
+        except _OnTargetError as hit:
+            z = hit.z
+            break
     x = full(z)
     return x, np.linalg.norm(points(x)[0] - targets, axis=1)
 

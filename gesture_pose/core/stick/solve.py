@@ -35,7 +35,7 @@ from .lifting import lift_population
 from .normalize import drawing_scale, normalize_figure
 from .objective import EnvPin, StickObjective, Weights
 from .pins import EnvPinSpec, LimbPinSpec, pin_offsets, resolve_pins
-from .refine import refine
+from .refine import RefineResult, refine, refine_least_squares
 from .threads import single_thread_blas
 
 #: A candidate whose energy after the short refinement exceeds ``HOPELESS_RATIO`` times
@@ -68,6 +68,7 @@ class StickInput:
         ga: Genetic search settings.
         weights: Objective weights.
         refine_iterations: L-BFGS-B iterations for each suggestion's final refinement.
+        polish_evaluations: Gauss-Newton residual evaluations that follow them (0: none).
     """
 
     skeleton: Skeleton
@@ -88,7 +89,8 @@ class StickInput:
     use_contact: bool = False
     ga: GAConfig = field(default_factory=GAConfig)
     weights: Weights = field(default_factory=Weights)
-    refine_iterations: int = 80
+    refine_iterations: int = 20
+    polish_evaluations: int = 30
 
 
 @dataclass(frozen=True)
@@ -200,6 +202,16 @@ def _distinct(joints: np.ndarray, order: np.ndarray, k: int, min_dist: float) ->
         if len(chosen) == k:
             break
     return chosen
+
+
+def _refine_long(objective: StickObjective, x: np.ndarray, bounds: np.ndarray,
+                 inp: StickInput) -> RefineResult:
+    """L-BFGS-B, then Gauss-Newton polishing of the sum of squares (the lower one)."""
+    r = refine(objective, x, bounds, max_iterations=inp.refine_iterations)
+    if inp.polish_evaluations <= 0:
+        return r
+    p = refine_least_squares(objective, r.x, bounds, max_iterations=inp.polish_evaluations)
+    return p if p.energy < r.energy else r
 
 
 def solve_stick(inp: StickInput) -> StickResult:
@@ -339,7 +351,7 @@ def _solve(inp: StickInput) -> StickResult:
     # A candidate far above the best after the short refinement (a limb through the
     # body or the seat) stays an alternative as it is: its long refinement is skipped.
     e_best = min(first[i].energy for i in best)
-    refined = [refine(objective, first[i].x, bounds, max_iterations=inp.refine_iterations)
+    refined = [_refine_long(objective, first[i].x, bounds, inp)
                if first[i].energy <= HOPELESS_RATIO * e_best + HOPELESS_MARGIN else first[i]
                for i in best]
     timings["refine"] = time.perf_counter() - t0
