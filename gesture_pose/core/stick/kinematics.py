@@ -85,6 +85,7 @@ class PoseModel:
     _desc: np.ndarray = field(init=False, repr=False)
     _root_carry: np.ndarray = field(init=False, repr=False)
     _root_hcarry: np.ndarray = field(init=False, repr=False)
+    _level_data: tuple = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         """Flatten the groups into per-(bone, gene) entries and cache descendant masks."""
@@ -122,6 +123,15 @@ class PoseModel:
         for i in range(sk.n_bones):
             desc[i, sk.descendants(i)] = True
         object.__setattr__(self, "_desc", desc)
+        levels = []
+        for level in sk._levels:
+            par = sk.parents[level]
+            root = par < 0
+            ri, ci, cp = level[root], level[~root], par[~root]
+            levels.append((ri, ci, cp, np.swapaxes(sk.rest_frames[cp], 1, 2),
+                           sk.inherit_rotation[ci][:, None, None],
+                           sk.rest_heads[ci] - sk.rest_heads[cp]))
+        object.__setattr__(self, "_level_data", tuple(levels))
         state = sk.forward(self.base)
         r = fig.root_bone
         object.__setattr__(self, "_root_carry", sk.parent_carry(r, state))
@@ -203,17 +213,13 @@ class PoseModel:
         offset = np.einsum("nij,pnj->pni", rest, t)
         frames = np.empty((P, n, 3, 3))
         heads = np.empty((P, n, 3))
-        for level in sk._levels:
-            par = sk.parents[level]
-            root = par < 0
-            ri, ci, cp = level[root], level[~root], par[~root]
+        for ri, ci, cp, rest_t, inherit, rel0 in self._level_data:
             frames[:, ri] = local[:, ri]
             heads[:, ri] = sk.rest_heads[ri] + offset[:, ri]
             if ci.size:
-                carry = frames[:, cp] @ np.swapaxes(rest[cp], 1, 2)
-                inherit = sk.inherit_rotation[ci][:, None, None]
+                carry = frames[:, cp] @ rest_t
                 frames[:, ci] = np.where(inherit, carry @ local[:, ci], local[:, ci])
-                rel = sk.rest_heads[ci] - sk.rest_heads[cp] + offset[:, ci]
+                rel = rel0 + offset[:, ci]
                 heads[:, ci] = heads[:, cp] + np.einsum("pnij,pnj->pni", carry, rel)
         tails = heads + frames[..., 1] * sk.lengths[:, None]
         return heads, tails, frames, phi

@@ -74,12 +74,14 @@ class Weights:
     position: float = 0.1
 
 
-def project_jacobian(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def project_jacobian(camera: Camera, points: np.ndarray, jacobian: bool = True
+                     ) -> tuple[np.ndarray, np.ndarray | None]:
     """Pixels of world points and the projection's Jacobian.
 
     Args:
         camera: The view.
         points: World points, shape ``(..., 3)``.
+        jacobian: Also compute the Jacobian (None otherwise).
 
     Returns:
         ``(pixels (..., 2), d pixels / d points (..., 2, 3))``.
@@ -89,6 +91,8 @@ def project_jacobian(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np
     w = clip[..., 3:4]
     size = np.array([camera.width, camera.height], float) / 2.0
     px = (clip[..., :2] / w + 1.0) * size
+    if not jacobian:
+        return px, None
     J = (M[None, :2, :3] * w[..., None] - clip[..., :2, None] * M[3, :3]) / (w[..., None] ** 2)
     return px, J * size[:, None]
 
@@ -192,7 +196,7 @@ class StickObjective:
     # -- terms ---------------------------------------------------------------------------
 
     def _projection(self, joints, grad):
-        q, Jq = project_jacobian(self.camera, joints)
+        q, Jq = project_jacobian(self.camera, joints, grad)
         a, b = self._edges[:, 0], self._edges[:, 1]
         u = q[:, b] - q[:, a]
         n = np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-9)
@@ -329,7 +333,7 @@ class StickObjective:
         fig, w = self.model.figure, self.weights
         P = heads.shape[0]
         joints = fig.joint_positions(heads, tails)
-        q, _ = project_jacobian(self.camera, joints)
+        q, _ = project_jacobian(self.camera, joints, jacobian=False)
         a, b = self._edges[:, 0], self._edges[:, 1]
         u = q[:, b] - q[:, a]
         uh = u / np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-9)
