@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_left
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -48,6 +48,10 @@ class SampledStroke:
         inner = np.flatnonzero((kappa[1:-1] >= kappa[:-2]) & (kappa[1:-1] >= kappa[2:])) + 1
         return cls(s, stroke.evaluate(s), kappa, float(s[1] - s[0]), float(s[-1]),
                    tuple(inner.tolist()), np.concatenate([[0.0], np.cumsum(kappa)]))
+
+    def shifted(self, offset: np.ndarray) -> SampledStroke:
+        """The same samples translated by ``offset`` pixels (shape ``(2,)``)."""
+        return replace(self, points=self.points + np.asarray(offset, dtype=float))
 
     def at(self, s: float) -> np.ndarray:
         """Point at arc length ``s`` (linear between the evenly spaced samples), ``(2,)``."""

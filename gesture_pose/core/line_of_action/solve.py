@@ -89,10 +89,18 @@ def _pieces(stroke: Stroke, plan: ChainPlan, view: ViewOps, cs: ChainState) -> l
     return [stroke.sub_stroke(0.0, s1).reversed(), stroke.sub_stroke(s2, stroke.length)]
 
 
-def _prepare(piece: Stroke, start_px: np.ndarray, chain_px_length: float | None) -> Stroke:
-    """Eq. 1: translate the piece onto its start joint; scale it for shape tracking."""
-    scale = 1.0 if chain_px_length is None else chain_px_length / max(piece.length, 1e-9)
-    return piece.transformed(scale=scale, offset=np.asarray(start_px) - piece.points[0])
+def _prepare(piece: Stroke, start_px: np.ndarray, chain_px_length: float | None,
+             step: float) -> SampledStroke:
+    """Eq. 1: the piece sampled and translated onto its start joint (scaled for shape).
+
+    A translation leaves arc lengths and curvature as they are, so the samples are shifted
+    rather than a new spline built; scaling needs the spline of the scaled stroke.
+    """
+    offset = np.asarray(start_px) - piece.points[0]
+    if chain_px_length is None:
+        return SampledStroke.from_stroke(piece, step).shifted(offset)
+    scale = chain_px_length / max(piece.length, 1e-9)
+    return SampledStroke.from_stroke(piece.transformed(scale=scale, offset=offset), step)
 
 
 def _run_part(skeleton: Skeleton, view: ViewOps, cs: ChainState, piece: Stroke, part,
@@ -106,13 +114,11 @@ def _run_part(skeleton: Skeleton, view: ViewOps, cs: ChainState, piece: Stroke, 
         # The chain must be known before the stroke is scaled to its length: find it by
         # a dry run on a copy, which chooses branches exactly as the real pass would.
         trial = cs.copy()
-        dry = _prepare(piece, start_px, None)
-        sampled = SampledStroke.from_stroke(dry, options.sample_step)
+        sampled = _prepare(piece, start_px, None, options.sample_step)
         bones = pose_part(skeleton, view, sampled, trial, spec, options).bones
         spec = PartSpec(bones[:1], bones, plan.direction_path, False)
     length = _projected_length(view, _path_points(cs, bones)) if shape else None
-    prepared = _prepare(piece, start_px, length)
-    sampled = SampledStroke.from_stroke(prepared, options.sample_step)
+    sampled = _prepare(piece, start_px, length, options.sample_step)
     return pose_part(skeleton, view, sampled, cs, spec, options)
 
 
