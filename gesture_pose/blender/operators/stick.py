@@ -26,6 +26,7 @@ from ..operator_utils import (
     resolve_armature,
     resolve_sketch,
 )
+from ..panel import GesturePoseSubPanel
 from ..read_armature import read_armature
 from ..stick_io import (
     environment_objects,
@@ -313,15 +314,11 @@ class StickSettings(bpy.types.PropertyGroup):
     pin_candidate: bpy.props.IntProperty(name="Surface", default=0, min=0)
 
 
-class VIEW3D_PT_gesture_pose_stick(bpy.types.Panel):
+class VIEW3D_PT_gesture_pose_stick(GesturePoseSubPanel, bpy.types.Panel):
     """Stick figures in an environment."""
 
     bl_idname = "VIEW3D_PT_gesture_pose_stick"
     bl_label = "Stick Figure"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Gesture Pose"
-    bl_parent_id = "VIEW3D_PT_gesture_pose"
 
     def draw(self, context: bpy.types.Context) -> None:
         """Settings, solve, suggestions, pins and editing."""

@@ -232,18 +232,7 @@ def solve_stick(inp: StickInput) -> StickResult:
 
 
 def _solve(inp: StickInput) -> StickResult:
-    """Pose the character from a drawn stick figure.
-
-    Args:
-        inp: The problem.
-
-    Returns:
-        Distinct suggestions, best first, with diagnostics.
-
-    Raises:
-        InputError: The drawing does not match the character, or bad pins.
-        SolverError: No finite solution was found.
-    """
+    """The body of :func:`solve_stick` (same arguments, result and errors)."""
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     sk, cam = inp.skeleton, inp.camera
