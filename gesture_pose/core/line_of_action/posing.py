@@ -95,6 +95,48 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return np.array([x / n, y / n, z / n])
 
 
+def _swing_from_y(v: list[float]) -> list[list[float]] | None:
+    """Smallest rotation taking y to the unit vector ``v``, as nested lists.
+
+    With ``K = [y x v]_x``: ``R = I + K + K^2 / (1 + v_y)``, written out. None when ``v`` is
+    (nearly) ``-y``, where the swing's axis is undefined.
+    """
+    a, c, b = v
+    if c < -1.0 + 1e-9:
+        return None
+    k = 1.0 / (1.0 + c)
+    return [[1.0 - a * a * k, a, -a * b * k], [-a, c, -b], [-a * b * k, b, 1.0 - b * b * k]]
+
+
+def reswing(q: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """``S_new T``: ``q = S T`` (swing-twist about y) with its swing replaced.
+
+    ``S_new`` takes y to the unit vector ``target``; the twist ``T = S^T q`` is kept. One
+    pass on Python floats (this runs once per joint).
+
+    Args:
+        q: Local rotation, shape ``(3, 3)``.
+        target: Unit direction of the bone in its parent-carried frame, shape ``(3,)``.
+
+    Returns:
+        Local rotation, shape ``(3, 3)``.
+    """
+    ql = q.tolist()
+    yx, yy, yz = ql[0][1], ql[1][1], ql[2][1]
+    m = math.sqrt(yx * yx + yy * yy + yz * yz)
+    s_old = _swing_from_y([yx / m, yy / m, yz / m])
+    tx, ty, tz = target.tolist()
+    n = math.sqrt(tx * tx + ty * ty + tz * tz)  # exactly unit, or the error would compound
+    s_new = _swing_from_y([tx / n, ty / n, tz / n])
+    if s_old is None or s_new is None:
+        return mm3(rotation_between3(_Y, target)[0], twist_about_y(q))
+    # m = S_new S_old^T, then m q
+    m = [[sum(s_new[i][k] * s_old[j][k] for k in range(3)) for j in range(3)]
+         for i in range(3)]
+    return np.array([[sum(m[i][k] * ql[k][j] for k in range(3)) for j in range(3)]
+                     for i in range(3)])
+
+
 def twist_about_y(q: np.ndarray) -> np.ndarray:
     """Twist factor ``T`` of ``q = S T`` (swing-twist about the bone's y axis), ``(3, 3)``."""
     swing, _ = rotation_between3(_Y, q[:, 1])
@@ -201,8 +243,7 @@ def aimed_rotation(cs: ChainState, bone: int, seg_end: np.ndarray,
     angle = math.acos(max(-1.0, min(1.0, float(cur_dir @ new_dir))))
     target_local = mv3(carry.T, new_dir)
     if float(frame[:, 1] @ cur_dir) > 1.0 - 1e-9:  # the segment runs along the bone's y
-        swing, _ = rotation_between3(_Y, target_local)
-        return mm3(swing, twist_about_y(q)), angle
+        return reswing(q, target_local), angle
     delta, _ = rotation_between3(mv3(q, mv3(frame.T, cur_dir)), target_local)
     return mm3(delta, q), angle
 
