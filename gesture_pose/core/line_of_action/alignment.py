@@ -20,32 +20,41 @@ from ..camera import Camera
 
 @dataclass(frozen=True)
 class ViewOps:
-    """Fast single-point camera operations with the matrices inverted once.
+    """A camera with float fast paths for the single points of the per-joint loop.
+
+    Array operations are the camera's own; one-point projections, depths and rays run on
+    Python floats from matrices inverted once, since numpy's per-call overhead would
+    dominate them.
 
     Attributes:
-        full: World to clip matrix, shape ``(4, 4)``.
-        inverse: Its inverse, shape ``(4, 4)``.
-        size: ``(width, height)`` in pixels, shape ``(2,)``.
+        camera: The view.
         forward: Unit view direction, shape ``(3,)``.
-        depth_row: Row of the view matrix giving ``-depth``, shape ``(4,)``.
     """
 
-    full: np.ndarray
-    inverse: np.ndarray
-    size: np.ndarray
+    camera: Camera
     forward: np.ndarray
-    depth_row: np.ndarray
 
     def __post_init__(self) -> None:
-        """Keep Python-float copies for the single-point paths.
-
-        numpy's per-call overhead would dominate one-point projections and rays.
-        """
-        object.__setattr__(self, "_m", [self.full[i].tolist() for i in (0, 1, 3)])
-        object.__setattr__(self, "_inv", self.inverse.tolist())
+        """Keep Python-float copies of the matrices."""
+        full = self.camera.full_matrix
+        object.__setattr__(self, "_m", [full[i].tolist() for i in (0, 1, 3)])
+        object.__setattr__(self, "_inv", np.linalg.inv(full).tolist())
         object.__setattr__(self, "_fwd", self.forward.tolist())
-        object.__setattr__(self, "_dr", self.depth_row.tolist())
-        object.__setattr__(self, "_size", self.size.tolist())
+        object.__setattr__(self, "_dr", self.camera.view_matrix[2].tolist())
+        object.__setattr__(self, "_size", [float(self.camera.width), float(self.camera.height)])
+
+    @classmethod
+    def from_camera(cls, camera: Camera) -> ViewOps:
+        """Precompute the float matrices of ``camera``."""
+        return cls(camera, camera.forward)
+
+    def project(self, p: np.ndarray) -> np.ndarray:
+        """Pixels of world points, ``(n, 3) -> (n, 2)`` (see :meth:`Camera.project`)."""
+        return self.camera.project(p)
+
+    def depth(self, p: np.ndarray) -> np.ndarray:
+        """View depth of world points, ``(n, 3) -> (n,)`` (see :meth:`Camera.depth`)."""
+        return self.camera.depth(p)
 
     def project_point(self, x: float, y: float, z: float) -> tuple[float, float]:
         """Pixel of one world point given as floats."""
@@ -75,41 +84,6 @@ class ViewOps:
         dx, dy, dz = f[0] - o[0], f[1] - o[1], f[2] - o[2]
         n = math.sqrt(dx * dx + dy * dy + dz * dz)
         return o, (dx / n, dy / n, dz / n)
-
-    @classmethod
-    def from_camera(cls, camera: Camera) -> ViewOps:
-        """Precompute the matrices of ``camera``."""
-        full = camera.full_matrix
-        return cls(full, np.linalg.inv(full), np.array([camera.width, camera.height], float),
-                   camera.forward, camera.view_matrix[2].copy())
-
-    def project(self, p: np.ndarray) -> np.ndarray:
-        """Pixels of world points, ``(..., 3) -> (..., 2)``."""
-        clip = p @ self.full[:, :3].T + self.full[:, 3]
-        return (clip[..., :2] / clip[..., 3:4] + 1.0) * 0.5 * self.size
-
-    def depth(self, p: np.ndarray) -> np.ndarray:
-        """View depth of world points, ``(..., 3) -> (...)``."""
-        return -(p @ self.depth_row[:3] + self.depth_row[3])
-
-    def rays(self, px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World rays through many pixels: origins and unit directions, ``(m, 3)`` each."""
-        ndc = np.asarray(px, float) / self.size * 2.0 - 1.0
-        ones = np.ones((len(ndc), 1))
-        near = np.hstack([ndc, -ones, ones]) @ self.inverse.T
-        far = np.hstack([ndc, 0.0 * ones, ones]) @ self.inverse.T
-        near, far = near[:, :3] / near[:, 3:], far[:, :3] / far[:, 3:]
-        d = far - near
-        return near, d / np.linalg.norm(d, axis=1, keepdims=True)
-
-    def ray(self, px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World ray ``(origin, unit direction)`` through pixel ``px`` (shape ``(2,)``)."""
-        ndc = px / self.size * 2.0 - 1.0
-        near = self.inverse @ np.array([ndc[0], ndc[1], -1.0, 1.0])
-        far = self.inverse @ np.array([ndc[0], ndc[1], 0.0, 1.0])
-        near, far = near[:3] / near[3], far[:3] / far[3]
-        d = far - near
-        return near, d / math.sqrt(float(d @ d))
 
 
 @dataclass(frozen=True)
@@ -159,35 +133,29 @@ def circle_of(
 
 @dataclass(frozen=True)
 class StrokeRays:
-    """The rays through a sampled stroke, with what every crossing test needs.
+    """The rays through a sampled stroke, reduced to what the crossing test needs.
+
+    The point at view depth ``D`` on the ray through sample ``k`` is ``q_k(D) = A_k + D B_k``,
+    so ``|q_k(D) - c|^2`` is linear in the per-ray terms ``(|A|^2, A.B, |B|^2, A, B)``.
 
     Attributes:
         params: Arc lengths of the samples, shape ``(m,)``.
-        origins: Ray origins, shape ``(m, 3)``.
-        directions: Unit ray directions, shape ``(m, 3)``.
-        origin_depth: View depth of each origin, shape ``(m,)``.
-        rate: Depth gained per unit along each ray, shape ``(m,)``.
-        coeffs: Per ray, with its point at depth ``D`` written ``q(D) = A + D B``: the
-            terms ``(|A|^2, A.B, |B|^2, A, B)`` of ``|q(D) - c|^2``, shape ``(m, 9)``.
+        coeffs: The per-ray terms, shape ``(m, 9)``.
     """
 
     params: np.ndarray
-    origins: np.ndarray
-    directions: np.ndarray
-    origin_depth: np.ndarray
-    rate: np.ndarray
     coeffs: np.ndarray
 
     @classmethod
     def through(cls, view: ViewOps, params: np.ndarray, pixels: np.ndarray) -> StrokeRays:
         """Rays through stroke samples ``pixels`` (shape ``(m, 2)``) at arc lengths ``params``."""
-        origins, directions = view.rays(pixels)
+        origins, directions = view.camera.rays(pixels)
         depth, rate = view.depth(origins), directions @ view.forward
         b = directions / rate[:, None]
         a = origins - depth[:, None] * b
         coeffs = np.column_stack([np.einsum("ij,ij->i", a, a), np.einsum("ij,ij->i", a, b),
                                   np.einsum("ij,ij->i", b, b), a, b])
-        return cls(params, origins, directions, depth, rate, coeffs)
+        return cls(params, coeffs)
 
 
 def stroke_circle_crossing(
