@@ -281,14 +281,19 @@ def test_features_beat_uniform_baseline_on_a_curved_stroke() -> None:
     assert base.mean_distance > 0.5
 
 
+def bent_arm():
+    """A 0.6 m + 0.4 m vertical two-bone arm, an orthographic front camera, the arm's base
+    in pixels and the camera's pixels per metre."""
+    sk = chain_skeleton(np.array([[0, 0, 0], [0, 0, 0.6], [0, 0, 1.0]], float))
+    cam = front_camera(ortho=True)
+    return sk, cam, cam.project(sk.rest_heads[:1])[0], cam.pixels_per_unit(6.0)
+
+
 def test_drawn_corner_decides_the_bone_direction() -> None:
     # The elbow is drawn at 0.5 of a 0.6 m upper arm: Eq. 2 finds the corner, and Eq. 4
     # points the upper arm at it (the joint cannot reach it exactly), instead of landing
     # the joint where the stroke's second leg crosses its circle.
-    sk = chain_skeleton(np.array([[0, 0, 0], [0, 0, 0.6], [0, 0, 1.0]], float))
-    cam = front_camera(ortho=True)
-    p0 = cam.project(sk.rest_heads[:1])[0]
-    ppu = cam.pixels_per_unit(6.0)
+    sk, cam, p0, ppu = bent_arm()
     corner = p0 + [0.5 * ppu, 0.0]
     stroke = Stroke(polyline(p0, corner, corner + [0.0, 0.6 * ppu]))
     res = pose_from_stroke(sk, Pose.identity(2), cam, stroke)
@@ -301,10 +306,7 @@ def test_drawn_corner_decides_the_bone_direction() -> None:
 
 
 def test_bent_limb_elbow_lands_on_the_drawn_corner() -> None:
-    sk = chain_skeleton(np.array([[0, 0, 0], [0, 0, 0.6], [0, 0, 1.0]], float))
-    cam = front_camera(ortho=True)
-    p0 = cam.project(sk.rest_heads[:1])[0]
-    ppu = cam.pixels_per_unit(6.0)
+    sk, cam, p0, ppu = bent_arm()
     elbow = p0 + [0.6 * ppu, 0]
     stroke = Stroke(polyline(p0, elbow, elbow + [0, 0.5 * ppu]))
     res = pose_from_stroke(sk, Pose.identity(2), cam, stroke)

@@ -37,8 +37,8 @@ class SampledStroke:
     curvature: np.ndarray
     step: float
     length: float
-    peaks: tuple[int, ...] = ()
-    curvature_sum: np.ndarray | None = None
+    peaks: tuple[int, ...]
+    curvature_sum: np.ndarray
 
     @classmethod
     def from_stroke(cls, stroke: Stroke, step: float) -> SampledStroke:
