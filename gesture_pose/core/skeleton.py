@@ -21,7 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .exceptions import InputError
-from .rotations import exp_map, normalize, rotation_between, swing_twist
+from .rotations import normalize, swing_twist
+from .rotations3 import reswing
 
 
 @dataclass(frozen=True)
@@ -276,10 +277,8 @@ class Skeleton:
         Returns:
             Local rotation ``Q_i``, shape ``(3, 3)``.
         """
-        y = np.array([0.0, 1.0, 0.0])
         local_dir = self.parent_carry(i, state).T @ normalize(np.asarray(direction, float))
-        _, twist = swing_twist(current, y)
-        return rotation_between(y, local_dir) @ exp_map(y * twist)
+        return reswing(np.asarray(current, float), local_dir)
 
     def twist_angles(self, pose: Pose) -> np.ndarray:
         """Twist of every local rotation about the bone's own y axis, radians, ``(n,)``."""
