@@ -163,21 +163,11 @@ def add_abstractions(arm_obj: bpy.types.Object, mesh_obj: bpy.types.Object
 
 def evaluated_polylines(obj: bpy.types.Object) -> list[np.ndarray]:
     """World polylines of an edge-chain abstraction as currently deformed."""
+    from gesture_pose.blender.abstraction_io import mesh_arrays
     from gesture_pose.blender.read_strokes import chain_edges
 
-    depsgraph = bpy.context.evaluated_depsgraph_get()
-    ev = obj.evaluated_get(depsgraph)
-    mesh = ev.to_mesh()
-    try:
-        co = np.empty(len(mesh.vertices) * 3)
-        mesh.vertices.foreach_get("co", co)
-        edges = np.empty(len(mesh.edges) * 2, dtype=np.int64)
-        mesh.edges.foreach_get("vertices", edges)
-    finally:
-        ev.to_mesh_clear()
-    m = np.array(ev.matrix_world)
-    pts = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
-    return [pts[c] for c in chain_edges(edges.reshape(-1, 2), len(pts))]
+    pts, edges, _ = mesh_arrays(obj, bpy.context.evaluated_depsgraph_get())
+    return [pts[c] for c in chain_edges(edges, len(pts))]
 
 
 def save_abstraction_scene(path: str | Path, pose_name: str = "wave") -> Path:

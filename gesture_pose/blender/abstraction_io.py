@@ -82,7 +82,7 @@ def _world(points: np.ndarray, matrix) -> np.ndarray:
     return points @ m[:3, :3].T + m[:3, 3]
 
 
-def _mesh_arrays(obj, depsgraph) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def mesh_arrays(obj, depsgraph) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Evaluated world vertices, edges and per-edge face counts of a mesh or curve object."""
     evaluated = obj.evaluated_get(depsgraph)
     mesh = evaluated.to_mesh()
@@ -121,7 +121,7 @@ def _object_points(obj, depsgraph) -> np.ndarray:
     """All evaluated world points of an abstraction object, ``(v, 3)``."""
     if obj.type == "GREASEPENCIL":
         return _gp_arrays(obj, depsgraph)[0]
-    return _mesh_arrays(obj, depsgraph)[0]
+    return mesh_arrays(obj, depsgraph)[0]
 
 
 def _vertex_group_weights(obj, skeleton: Skeleton) -> np.ndarray | None:
@@ -198,7 +198,7 @@ def read_abstraction(objects: list, arm: ArmatureData, arm_obj, depsgraph,
             _, spans, _ = _gp_arrays(obj, depsgraph)
             chains = [np.arange(a, b) for a, b in spans if b - a >= 2]
         else:
-            verts, edges, faces = _mesh_arrays(obj, depsgraph)
+            verts, edges, faces = mesh_arrays(obj, depsgraph)
             keep = faces <= 1 if obj.type == "CURVE" else faces >= 0
             chains = [c for c in chain_edges(edges[keep], len(verts)) if len(c) >= 2]
             if own is not None and len(own) != len(verts):
