@@ -169,18 +169,24 @@ def test_pose_on_a_traced_quadruped(registered):
     assert rep.timings["solve3d"] < 5.0
 
 
+def _oracle_fit(truth):
+    """A stand-in for the 2D fit: the exact embedding of the known pose ``truth``."""
+
+    def fit(arm_obj, sketch_obj, camera, frame=None, params=None):
+        skeleton = read_armature(arm_obj).skeleton
+        return project_embedding(skeleton, solving_skeleton(skeleton), truth.pose, camera,
+                                 0.06, "auto"), 1
+
+    return fit
+
+
 def test_pose_restarts_from_the_bind_pose(registered, monkeypatch):
     """Pose on a changed pose gives the same result as from rest: no drift."""
     arm, cam, bind, truth = _character("humanoid", "step", (0.0, -1.0, 0.0))
     sketch = builders.add_grease_pencil("Sketch", [np.array([[0.0, -1.0, 0.0],
                                                              [0.1, -1.0, 0.5]])])
 
-    def oracle_fit(arm_obj, sketch_obj, camera, frame=None, params=None):
-        skeleton = read_armature(arm_obj).skeleton
-        return project_embedding(skeleton, solving_skeleton(skeleton), truth.pose, camera,
-                                 0.06, "auto"), 1
-
-    monkeypatch.setattr(pose_drawing, "fit_scene_drawing", oracle_fit)
+    monkeypatch.setattr(pose_drawing, "fit_scene_drawing", _oracle_fit(truth))
     first = pose_drawing.pose_from_drawing(arm, sketch, cam, insert_keys=False)
     bpy.context.view_layer.update()
     posed = read_armature(arm).pose.rotations.copy()
@@ -249,12 +255,7 @@ def test_pose_stroke_refines_a_limb_after_pose(registered, monkeypatch):
     sketch = builders.add_grease_pencil("Sketch", [np.array([[0.0, -1.0, 0.0],
                                                              [0.1, -1.0, 0.5]])])
 
-    def oracle_fit(arm_obj, sketch_obj, camera, frame=None, params=None):
-        skeleton = read_armature(arm_obj).skeleton
-        return project_embedding(skeleton, solving_skeleton(skeleton), truth.pose, camera,
-                                 0.06, "auto"), 1
-
-    monkeypatch.setattr(pose_drawing, "fit_scene_drawing", oracle_fit)
+    monkeypatch.setattr(pose_drawing, "fit_scene_drawing", _oracle_fit(truth))
     pose_drawing.pose_from_drawing(arm, sketch, cam)
     bpy.context.view_layer.update()
     posed = read_armature(arm)
