@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.interpolate import CubicHermiteSpline
+from scipy.spatial import cKDTree
 
 from .exceptions import InputError
 
@@ -138,8 +139,29 @@ class Stroke:
         return Stroke(self.evaluate(np.linspace(s0, s1, count + 1)))
 
 
+def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance from points to segments, all of shape ``(..., 2)``; returns ``(...)``.
+
+    x and y are kept apart: no reductions over a 2-axis.
+    """
+    bx, by = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
+    px, py = p[..., 0] - a[..., 0], p[..., 1] - a[..., 1]
+    t = np.clip((px * bx + py * by) / np.maximum(bx * bx + by * by, 1e-300), 0.0, 1.0)
+    dx, dy = px - t * bx, py - t * by
+    return np.sqrt(dx * dx + dy * dy)
+
+
+# Below this many point-segment pairs the brute-force distance is cheaper than the tree.
+_BRUTE_FORCE_PAIRS = 4096
+
+
 def distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
     """Distance from each point to the nearest point of a polyline.
+
+    Exact. Small inputs are compared against every segment; larger ones use a k-d tree
+    over the vertices: the segments next to a point's nearest vertex give an upper bound
+    ``u`` on its distance, and a segment of length at most ``L`` can only be nearer than
+    ``u`` if one of its ends lies within ``u + L / 2``, so only those segments are tested.
 
     Args:
         points: Query points in pixels, shape ``(m, 2)``.
@@ -148,13 +170,24 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray
     Returns:
         Distances in pixels, shape ``(m,)``.
     """
-    p = np.asarray(points, dtype=float)
+    p = np.asarray(points, dtype=float).reshape(-1, 2)
     v = np.asarray(polyline, dtype=float)
-    ax, ay = v[:-1, 0], v[:-1, 1]
-    bx, by = v[1:, 0] - ax, v[1:, 1] - ay
-    inv_len2 = 1.0 / np.maximum(bx * bx + by * by, 1e-300)
-    px = p[:, 0:1] - ax  # (m, n - 1), x and y kept apart: no reductions over a 2-axis
-    py = p[:, 1:2] - ay
-    t = np.clip((px * bx + py * by) * inv_len2, 0.0, 1.0)
-    dx, dy = px - t * bx, py - t * by
-    return np.sqrt(np.min(dx * dx + dy * dy, axis=1))
+    a, b = v[:-1], v[1:]
+    n_seg = len(a)
+    if len(p) * n_seg <= _BRUTE_FORCE_PAIRS:
+        return _segment_distance(p[:, None], a[None], b[None]).min(axis=1)
+    tree = cKDTree(v)
+    _, nearest = tree.query(p)
+    adjacent = np.clip(np.stack([nearest - 1, nearest], axis=1), 0, n_seg - 1)
+    bound = _segment_distance(p[:, None], a[adjacent], b[adjacent]).min(axis=1)
+    seg = b - a
+    half = 0.5 * float(np.sqrt(np.max(seg[:, 0] ** 2 + seg[:, 1] ** 2)))
+    near = tree.query_ball_point(p, bound + half + 1e-9)
+    counts = np.fromiter(map(len, near), dtype=int, count=len(p))
+    vertices = np.concatenate(near).astype(int)
+    owner = np.repeat(np.arange(len(p)), counts)
+    segs = np.clip(np.concatenate([vertices - 1, vertices]), 0, n_seg - 1)
+    owner = np.concatenate([owner, owner])
+    out = bound.copy()
+    np.minimum.at(out, owner, _segment_distance(p[owner], a[segs], b[segs]))
+    return out

@@ -172,3 +172,22 @@ def test_distance_to_polyline_exact_on_a_square() -> None:
     square = np.array([[0, 0], [10, 0], [10, 10], [0, 10]], float)
     pts = np.array([[5, -3], [12, 5], [5, 5], [-4, 13], [10, 10]], float)
     np.testing.assert_allclose(distance_to_polyline(pts, square), [3, 2, 5, 5, 0], atol=1e-12)
+
+
+def test_distance_to_polyline_tree_path_matches_every_segment() -> None:
+    from gesture_pose.core.stroke import (
+        _BRUTE_FORCE_PAIRS,
+        _segment_distance,
+        distance_to_polyline,
+    )
+
+    rng = np.random.default_rng(4)
+    for _ in range(40):
+        n = int(rng.integers(120, 400))
+        # Mixed segment lengths: dense runs and long straight spans.
+        steps = rng.normal(0.0, 1.0, (n, 2)) * rng.choice([0.5, 40.0], (n, 1), p=[0.9, 0.1])
+        line = np.cumsum(steps, axis=0)
+        pts = rng.uniform(line.min(0) - 30, line.max(0) + 30, (int(rng.integers(40, 120)), 2))
+        assert len(pts) * (n - 1) > _BRUTE_FORCE_PAIRS
+        every = _segment_distance(pts[:, None], line[None, :-1], line[None, 1:]).min(axis=1)
+        np.testing.assert_allclose(distance_to_polyline(pts, line), every, atol=1e-9)
