@@ -43,6 +43,14 @@ class Camera:
             object.__setattr__(self, attr, m)
         if self.width <= 0 or self.height <= 0:
             raise InputError("The view has no area (width or height is zero).")
+        full = self.projection_matrix @ self.view_matrix
+        try:
+            inverse = np.linalg.inv(full)
+        except np.linalg.LinAlgError:
+            raise InputError("The view's projection cannot be inverted.") from None
+        # Computed once: the per-stroke solvers project and unproject many times.
+        object.__setattr__(self, "_full", full)
+        object.__setattr__(self, "_inverse_full", inverse)
 
     @classmethod
     def look_at(
@@ -98,7 +106,12 @@ class Camera:
     @property
     def full_matrix(self) -> np.ndarray:
         """World to clip transform ``P V``, shape ``(4, 4)``."""
-        return self.projection_matrix @ self.view_matrix
+        return self._full
+
+    @property
+    def inverse_full_matrix(self) -> np.ndarray:
+        """Clip to world transform ``(P V)^-1``, shape ``(4, 4)``."""
+        return self._inverse_full
 
     @property
     def location(self) -> np.ndarray:
@@ -140,7 +153,7 @@ class Camera:
 
     def _unproject_ndc(self, ndc: np.ndarray) -> np.ndarray:
         homo = np.concatenate([ndc, np.ones(ndc.shape[:-1] + (1,))], -1)
-        world = homo @ np.linalg.inv(self.full_matrix).T
+        world = homo @ self._inverse_full.T
         return world[..., :3] / world[..., 3:4]
 
     def rays(self, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -38,7 +38,7 @@ class ViewOps:
         """Keep Python-float copies of the matrices."""
         full = self.camera.full_matrix
         object.__setattr__(self, "_m", [full[i].tolist() for i in (0, 1, 3)])
-        object.__setattr__(self, "_inv", np.linalg.inv(full).tolist())
+        object.__setattr__(self, "_inv", self.camera.inverse_full_matrix.tolist())
         object.__setattr__(self, "_fwd", self.forward.tolist())
         object.__setattr__(self, "_dr", self.camera.view_matrix[2].tolist())
         object.__setattr__(self, "_size", [float(self.camera.width), float(self.camera.height)])
