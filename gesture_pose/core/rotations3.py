@@ -56,15 +56,33 @@ def mm3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     numpy hands even 3x3 products to BLAS, whose thread pool makes each call several times
     slower on a busy machine; the per-joint loop stays clear of it.
     """
-    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a.tolist()
-    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b.tolist()
-    return np.array([
+    return np.array(_mul(a.tolist(), b.tolist()))
+
+
+def _mul(a: list, b: list) -> list[list[float]]:
+    """``a @ b`` for 3x3 nested lists, written out."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
+    return [
         [a00 * b00 + a01 * b10 + a02 * b20, a00 * b01 + a01 * b11 + a02 * b21,
          a00 * b02 + a01 * b12 + a02 * b22],
         [a10 * b00 + a11 * b10 + a12 * b20, a10 * b01 + a11 * b11 + a12 * b21,
          a10 * b02 + a11 * b12 + a12 * b22],
         [a20 * b00 + a21 * b10 + a22 * b20, a20 * b01 + a21 * b11 + a22 * b21,
-         a20 * b02 + a21 * b12 + a22 * b22]])
+         a20 * b02 + a21 * b12 + a22 * b22]]
+
+
+def _mul_bt(a: list, b: list) -> list[list[float]]:
+    """``a @ b.T`` for 3x3 nested lists, written out."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
+    return [
+        [a00 * b00 + a01 * b01 + a02 * b02, a00 * b10 + a01 * b11 + a02 * b12,
+         a00 * b20 + a01 * b21 + a02 * b22],
+        [a10 * b00 + a11 * b01 + a12 * b02, a10 * b10 + a11 * b11 + a12 * b12,
+         a10 * b20 + a11 * b21 + a12 * b22],
+        [a20 * b00 + a21 * b01 + a22 * b02, a20 * b10 + a21 * b11 + a22 * b12,
+         a20 * b20 + a21 * b21 + a22 * b22]]
 
 
 def mv3(a: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -110,11 +128,7 @@ def reswing(q: np.ndarray, target: np.ndarray) -> np.ndarray:
     s_new = _swing_from_y([tx / n, ty / n, tz / n])
     if s_old is None or s_new is None:
         return mm3(rotation_between3(_Y, target)[0], twist_about_y(q))
-    # m = S_new S_old^T, then m q
-    m = [[sum(s_new[i][k] * s_old[j][k] for k in range(3)) for j in range(3)]
-         for i in range(3)]
-    return np.array([[sum(m[i][k] * ql[k][j] for k in range(3)) for j in range(3)]
-                     for i in range(3)])
+    return np.array(_mul(_mul_bt(s_new, s_old), ql))  # S_new S_old^T q
 
 
 def twist_about_y(q: np.ndarray) -> np.ndarray:
