@@ -18,6 +18,12 @@ import numpy as np
 from ..camera import Camera
 
 
+def _xyz(p: np.ndarray | list[float] | tuple[float, ...]) -> tuple[float, float, float]:
+    """A world point as three floats (numpy arrays are converted, sequences kept)."""
+    x, y, z = p.tolist() if isinstance(p, np.ndarray) else p
+    return x, y, z
+
+
 @dataclass(frozen=True)
 class ViewOps:
     """A camera with float fast paths for the single points of the per-joint loop.
@@ -126,7 +132,7 @@ def circle_of(
         ``(centre, radius)``; the radius is 0 when the plane misses the sphere, and the
         centre is then the sphere point nearest the plane.
     """
-    centre, radius = _circle(view, tuple(np.asarray(parent, float).tolist()), length,
+    centre, radius = _circle(view, _xyz(parent), length,
                              plane_depth)
     return np.array(centre), radius
 
@@ -182,7 +188,7 @@ def stroke_circle_crossing(
         The arc length of the crossing (linearly interpolated), or None if the stroke
         does not cross the circle after ``s_from``.
     """
-    centre, radius = _circle(view, tuple(np.asarray(parent, float).tolist()), length,
+    centre, radius = _circle(view, _xyz(parent), length,
                              plane_depth)
     params = rays.params
     step = float(params[1] - params[0])
@@ -229,20 +235,32 @@ def place_joint(
     Returns:
         The placement.
     """
-    (cx, cy, cz), radius = _circle(view, tuple(np.asarray(parent, float).tolist()), length,
-                                   plane_depth)
-    if radius < min_radius_ratio * length:
+    position, radius = place_point(view, _xyz(parent), length, _xyz(current),
+                                   *np.asarray(target_px, float).tolist(), plane_depth,
+                                   min_radius_ratio)
+    if position is None:
         return Placement(np.array(current, float), radius, True)
-    tx, ty = np.asarray(target_px, float).tolist()
+    return Placement(np.array(position), radius, False)
+
+
+def place_point(
+    view: ViewOps, parent: tuple[float, float, float], length: float,
+    current: tuple[float, float, float], tx: float, ty: float, plane_depth: float,
+    min_radius_ratio: float,
+) -> tuple[tuple[float, float, float] | None, float]:
+    """:func:`place_joint` on floats: ``(position or None when skipped, circle radius)``."""
+    (cx, cy, cz), radius = _circle(view, parent, length, plane_depth)
+    if radius < min_radius_ratio * length:
+        return None, radius
     (ox, oy, oz), (dx, dy, dz) = view.ray_point(tx, ty)
     fx, fy, fz = view._fwd
     t = (plane_depth - view.depth_point(ox, oy, oz)) / (dx * fx + dy * fy + dz * fz)
     rx, ry, rz = ox + t * dx - cx, oy + t * dy - cy, oz + t * dz - cz
     norm = math.sqrt(rx * rx + ry * ry + rz * rz)
     if norm < 1e-12 * max(length, 1.0):
-        return Placement(np.array(current, float), radius, False)
+        return current, radius
     k = radius / norm
-    return Placement(np.array([cx + rx * k, cy + ry * k, cz + rz * k]), radius, False)
+    return (cx + rx * k, cy + ry * k, cz + rz * k), radius
 
 
 def joint_plane_depth(
@@ -269,9 +287,9 @@ def joint_plane_depth(
         The plane's view depth.
     """
     if plane_posing:
-        return view.depth_point(*np.asarray(parent, float).tolist())
-    _, radius = _circle(view, tuple(np.asarray(parent, float).tolist()), length,
+        return view.depth_point(*_xyz(parent))
+    _, radius = _circle(view, _xyz(parent), length,
                         float(original_depth))
     if radius >= min_radius_ratio * length:
         return float(original_depth)
-    return view.depth_point(*np.asarray(current, float).tolist())
+    return view.depth_point(*_xyz(current))

@@ -40,6 +40,10 @@ class SampledStroke:
     peaks: tuple[int, ...]
     curvature_sum: np.ndarray
 
+    def __post_init__(self) -> None:
+        """Keep the samples as Python floats too, for :meth:`at_xy`."""
+        object.__setattr__(self, "_xy", self.points.tolist())
+
     @classmethod
     def from_stroke(cls, stroke: Stroke, step: float) -> SampledStroke:
         """Sample ``stroke`` every ``step`` pixels of arc length (``length``: its end)."""
@@ -53,12 +57,16 @@ class SampledStroke:
         """The same samples translated by ``offset`` pixels (shape ``(2,)``)."""
         return replace(self, points=self.points + np.asarray(offset, dtype=float))
 
-    def at(self, s: float) -> np.ndarray:
-        """Point at arc length ``s`` (linear between the evenly spaced samples), ``(2,)``."""
+    def at_xy(self, s: float) -> tuple[float, float]:
+        """Point ``(x, y)`` at arc length ``s``, pixels, on Python floats.
+
+        Linear between the evenly spaced samples.
+        """
         u = min(max(s, 0.0), self.length) / self.step
-        i = min(int(u), len(self.params) - 2)
+        i = min(int(u), len(self._xy) - 2)
         f = u - i
-        return self.points[i] * (1.0 - f) + self.points[i + 1] * f
+        (x0, y0), (x1, y1) = self._xy[i], self._xy[i + 1]
+        return x0 + (x1 - x0) * f, y0 + (y1 - y0) * f
 
     def window(self, lo: float, hi: float) -> slice:
         """Sample indices whose arc lengths lie in ``[lo, hi]`` (samples are evenly spaced)."""

@@ -14,13 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..rotations3 import mm3, mv3, reswing, rotation_between3
+from ..rotations3 import M3, between, mtv, mul, mv, swap_swing
 from ..skeleton import PoseState, Skeleton
 from .alignment import (
     StrokeRays,
     ViewOps,
     joint_plane_depth,
-    place_joint,
+    place_point,
     stroke_circle_crossing,
 )
 from .chain import next_candidates
@@ -28,15 +28,26 @@ from .features import SampledStroke, feature_param, renormalize_param
 from .options import PlaneMode, StrokeOptions, Tracking
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    x, y, z = v.tolist()
+def _unit(x: float, y: float, z: float) -> list[float]:
     n = math.sqrt(x * x + y * y + z * z)
-    return np.array([x / n, y / n, z / n])
+    return [x / n, y / n, z / n]
+
+
+@dataclass(frozen=True)
+class _Tables:
+    """Per-skeleton constants of one solve, as Python lists (see :class:`ChainState`)."""
+
+    parents: list[int]
+    inherit: list[bool]
+    rel_rot: list[M3]
+    rest_frames: list[M3]
+    lengths: list[float]
+    offsets: list[list[float]]
 
 
 @dataclass
 class ChainState:
-    """Working copy of the pose while one stroke is applied.
+    """Working copy of the pose while one stroke is applied, on Python floats.
 
     The walk down a chain only ever needs the bone it is posing and that bone's children,
     and their parents are final by then; so a bone's world state is recomputed from its
@@ -44,26 +55,28 @@ class ChainState:
     rotating whole subtrees after every joint. Bones off the walked chain may hold stale
     world data; the local rotations are always current.
 
+    The per-joint work is a few dozen 3-vector and 3x3 operations, where numpy's per-call
+    overhead would dominate: the state is kept as nested lists (rows are replaced, never
+    edited in place, so a shallow copy is an independent copy) and exposed as arrays.
+
     Attributes:
         skeleton: The skeleton.
-        rotations: Local rotations, shape ``(n, 3, 3)``.
         translations: Local translations, shape ``(n, 3)``.
-        heads: World heads, shape ``(n, 3)``.
-        tails: World tails, shape ``(n, 3)``.
-        frames: World frames, shape ``(n, 3, 3)``.
-        lengths: Bone lengths, shape ``(n,)``.
-        offsets: Each head in its parent's posed frame, ``R_p^T (r_i - r_p + R_i t_i)``
-            (world point for roots), shape ``(n, 3)``.
+        q: Local rotations, ``n`` nested 3x3 lists.
+        h: World heads, ``n`` lists of three floats.
+        t: World tails, ``n`` lists of three floats.
+        f: World frames, ``n`` nested 3x3 lists.
+        tables: The skeleton's constants; ``offsets`` holds each head in its parent's
+            posed frame, ``R_p^T (r_i - r_p + R_i t_i)`` (world point for roots).
     """
 
     skeleton: Skeleton
-    rotations: np.ndarray
     translations: np.ndarray
-    heads: np.ndarray
-    tails: np.ndarray
-    frames: np.ndarray
-    lengths: np.ndarray
-    offsets: np.ndarray
+    q: list[M3]
+    h: list[list[float]]
+    t: list[list[float]]
+    f: list[M3]
+    tables: _Tables
 
     @classmethod
     def from_state(cls, skeleton: Skeleton, rotations: np.ndarray, translations: np.ndarray,
@@ -71,45 +84,86 @@ class ChainState:
         """Copy a pose and its forward kinematics."""
         rel_rot, rel_off = skeleton.rest_relative
         offsets = rel_off + np.einsum("nij,nj->ni", rel_rot, translations)
-        return cls(skeleton, rotations.copy(), translations, state.heads.copy(),
-                   state.tails.copy(), state.frames.copy(), skeleton.lengths, offsets)
+        tables = _Tables(skeleton.parents.tolist(), skeleton.inherit_rotation.tolist(),
+                         rel_rot.tolist(), skeleton.rest_frames.tolist(),
+                         skeleton.lengths.tolist(), offsets.tolist())
+        return cls(skeleton, translations, rotations.tolist(), state.heads.tolist(),
+                   state.tails.tolist(), state.frames.tolist(), tables)
+
+    @property
+    def rotations(self) -> np.ndarray:
+        """Local rotations, shape ``(n, 3, 3)``."""
+        return np.array(self.q)
+
+    @property
+    def heads(self) -> np.ndarray:
+        """World heads, shape ``(n, 3)``."""
+        return np.array(self.h)
+
+    @property
+    def tails(self) -> np.ndarray:
+        """World tails, shape ``(n, 3)``."""
+        return np.array(self.t)
+
+    @property
+    def frames(self) -> np.ndarray:
+        """World frames, shape ``(n, 3, 3)``."""
+        return np.array(self.f)
 
     def copy(self) -> ChainState:
         """An independent copy (for dry runs)."""
-        return ChainState(self.skeleton, self.rotations.copy(), self.translations,
-                          self.heads.copy(), self.tails.copy(), self.frames.copy(),
-                          self.lengths, self.offsets)
+        return ChainState(self.skeleton, self.translations, list(self.q), list(self.h),
+                          list(self.t), list(self.f), self.tables)
 
-    def carry(self, bone: int) -> np.ndarray:
+    def carry(self, bone: int) -> M3:
         """``C`` with ``F = C Q`` for ``bone`` (its parent's frame must be current)."""
-        sk = self.skeleton
-        rel_rot = sk.rest_relative[0][bone]
-        p = sk.parents[bone]
-        if p < 0 or not sk.inherit_rotation[bone]:
-            return sk.rest_frames[bone] if p >= 0 else rel_rot
-        return mm3(self.frames[p], rel_rot)
+        tb = self.tables
+        p = tb.parents[bone]
+        if p < 0:
+            return tb.rel_rot[bone]
+        if not tb.inherit[bone]:
+            return tb.rest_frames[bone]
+        return mul(self.f[p], tb.rel_rot[bone])
 
     def refresh_head(self, bone: int) -> None:
         """Recompute ``bone``'s world head from its (current) parent."""
-        off = self.offsets[bone]
-        p = self.skeleton.parents[bone]
-        self.heads[bone] = off if p < 0 else self.heads[p] + mv3(self.frames[p], off)
+        off = self.tables.offsets[bone]
+        p = self.tables.parents[bone]
+        if p < 0:
+            self.h[bone] = off
+            return
+        (x, y, z), (dx, dy, dz) = self.h[p], mv(self.f[p], off)
+        self.h[bone] = [x + dx, y + dy, z + dz]
 
     def refresh(self, bone: int) -> None:
         """Recompute ``bone``'s world head, tail and frame from its (current) parent."""
         self.refresh_head(bone)
-        self.set_rotation(bone, self.rotations[bone])
+        self.set_rotation(bone, self.q[bone])
 
-    def set_rotation(self, bone: int, local: np.ndarray) -> None:
+    def set_rotation(self, bone: int, local: M3) -> None:
         """Set a bone's local rotation and its world frame and tail (head unchanged)."""
-        self.rotations[bone] = local
-        frame = mm3(self.carry(bone), local)
-        self.frames[bone] = frame
-        self.tails[bone] = self.heads[bone] + frame[:, 1] * self.lengths[bone]
+        self.q[bone] = local
+        frame = mul(self.carry(bone), local)
+        self.f[bone] = frame
+        length = self.tables.lengths[bone]
+        x, y, z = self.h[bone]
+        self.t[bone] = [x + frame[0][1] * length, y + frame[1][1] * length,
+                        z + frame[2][1] * length]
+
+    def segment_point(self, bone: int, local: list[float]) -> list[float]:
+        """World position of a point given in ``bone``'s frame relative to its head."""
+        (x, y, z), (dx, dy, dz) = self.h[bone], mv(self.f[bone], local)
+        return [x + dx, y + dy, z + dz]
+
+    def local_offset(self, bone: int, point: list[float]) -> list[float]:
+        """``point`` in ``bone``'s frame relative to its head (inverse of the above)."""
+        x, y, z = self.h[bone]
+        px, py, pz = point
+        return mtv(self.f[bone], (px - x, py - y, pz - z))
 
 
-def aimed_rotation(cs: ChainState, bone: int, seg_end: np.ndarray,
-                   new_end: np.ndarray) -> tuple[np.ndarray, float]:
+def aimed_rotation(cs: ChainState, bone: int, seg_end: list[float],
+                   new_end: tuple[float, float, float]) -> tuple[M3, float]:
     """Local rotation of ``bone`` moving its segment end to ``new_end``, and the angle moved.
 
     The rotation is computed directly, not compounded: for a segment along the bone
@@ -120,23 +174,22 @@ def aimed_rotation(cs: ChainState, bone: int, seg_end: np.ndarray,
     Args:
         cs: Working pose.
         bone: Bone index.
-        seg_end: Current world end of the bone's segment, shape ``(3,)``.
-        new_end: Desired world end, shape ``(3,)``.
+        seg_end: Current world end of the bone's segment (three floats).
+        new_end: Desired world end (three floats).
 
     Returns:
-        ``(local rotation (3, 3), angle in radians)``.
+        ``(local rotation (3x3 nested list), angle in radians)``.
     """
-    head = cs.heads[bone]
-    frame, q = cs.frames[bone], cs.rotations[bone]
-    carry = cs.carry(bone)
-    cur_dir = _unit(seg_end - head)
-    new_dir = _unit(new_end - head)
-    angle = math.acos(max(-1.0, min(1.0, float(cur_dir @ new_dir))))
-    target_local = mv3(carry.T, new_dir)
-    if float(frame[:, 1] @ cur_dir) > 1.0 - 1e-9:  # the segment runs along the bone's y
-        return reswing(q, target_local), angle
-    delta, _ = rotation_between3(mv3(q, mv3(frame.T, cur_dir)), target_local)
-    return mm3(delta, q), angle
+    hx, hy, hz = cs.h[bone]
+    frame, q = cs.f[bone], cs.q[bone]
+    cur = _unit(seg_end[0] - hx, seg_end[1] - hy, seg_end[2] - hz)
+    new = _unit(new_end[0] - hx, new_end[1] - hy, new_end[2] - hz)
+    angle = math.acos(max(-1.0, min(1.0, cur[0] * new[0] + cur[1] * new[1] + cur[2] * new[2])))
+    target_local = mtv(cs.carry(bone), new)
+    if frame[0][1] * cur[0] + frame[1][1] * cur[1] + frame[2][1] * cur[2] > 1.0 - 1e-9:
+        return swap_swing(q, target_local), angle  # the segment runs along the bone's y
+    delta, _ = between(mv(q, mtv(frame, cur)), target_local)
+    return mul(delta, q), angle
 
 
 @dataclass(frozen=True)
@@ -144,10 +197,11 @@ class Trial:
     """Where one bone's segment would go.
 
     Attributes:
-        rotation: New local rotation, or None when the bone is skipped (view axis).
+        rotation: New local rotation (3x3 nested list), or None when the bone is skipped
+            (view axis).
         angle: Rotation magnitude, radians.
         param: Arc length of the joint's point on the stroke, pixels.
-        target: Target pixel, shape ``(2,)``.
+        target: Target pixel ``(x, y)``.
         projected: Projected segment length, pixels.
         depth_kept: False when the joint could not keep its depth (its parent moved too far
             in depth) and kept its current one instead.
@@ -155,10 +209,10 @@ class Trial:
             crossing), so Eq. 3's search would return ``param`` itself.
     """
 
-    rotation: np.ndarray | None
+    rotation: M3 | None
     angle: float
     param: float
-    target: np.ndarray
+    target: tuple[float, float]
     projected: float
     depth_kept: bool = True
     on_stroke: bool = False
@@ -213,32 +267,33 @@ class _Walker:
             skeleton, view, sampled, options, cs)
         self.plane = options.mode is PlaneMode.PLANE
         self.shape = options.tracking is Tracking.SHAPE
-        self.head_depth = view.depth(cs.heads)
-        self.tail_depth = view.depth(cs.tails)
+        self.head_depth = view.depth(cs.heads).tolist()
+        self.tail_depth = view.depth(cs.tails).tolist()
         self.crossing = (options.feature_extraction and options.stroke_crossing
                          and not self.shape)
         if self.crossing:
             self.rays = StrokeRays.through(view, sampled.params, sampled.points)
-        right = np.cross(view.forward, [0.0, 0.0, 1.0])
-        if np.linalg.norm(right) < 1e-6:
-            right = np.cross(view.forward, [0.0, 1.0, 0.0])
-        self.right = right / np.linalg.norm(right)
-        self.right_floats = self.right.tolist()
+        fx, fy, _ = view.forward.tolist()  # right = forward x z, or forward x y when level
+        rx, ry, rz = fy, -fx, 0.0
+        if math.hypot(rx, ry) < 1e-6:
+            fz = float(view.forward[2])
+            rx, ry, rz = -fz, 0.0, fx
+        self.right = _unit(rx, ry, rz)
 
-    def projected_length(self, start: np.ndarray, end: np.ndarray) -> float:
+    def projected_length(self, start: list[float], end: list[float]) -> float:
         """Pixels the segment covers now, or would cover orthogonal to the view (plane)."""
-        sx, sy, sz = start.tolist()
-        ex, ey, ez = end.tolist()
+        sx, sy, sz = start
+        ex, ey, ez = end
         if self.plane:
             length = math.sqrt((ex - sx) ** 2 + (ey - sy) ** 2 + (ez - sz) ** 2)
-            rx, ry, rz = self.right_floats
+            rx, ry, rz = self.right
             ex, ey, ez = sx + rx * length, sy + ry * length, sz + rz * length
         x0, y0 = self.view.project_point(sx, sy, sz)
         x1, y1 = self.view.project_point(ex, ey, ez)
         return math.hypot(x1 - x0, y1 - y0)
 
     def target(self, s_prev: float, lp: float,
-               landed_prev: np.ndarray) -> tuple[float, np.ndarray, bool]:
+               landed_prev: tuple[float, float]) -> tuple[float, tuple[float, float], bool]:
         """Eq. 2 for a segment projecting to ``lp`` px: arc length, target pixel, feature?"""
         guess = min(s_prev + lp, self.sampled.length)
         s, feature = guess, False
@@ -246,24 +301,27 @@ class _Walker:
             found = feature_param(self.sampled, guess, lp / 3.0, self.opt.feature_min_curvature)
             if found is not None:
                 s, feature = found, True
+        x, y = self.sampled.at_xy(s)
         if self.shape:
-            return s, landed_prev + self.sampled.at(s) - self.sampled.at(s_prev), feature
-        return s, self.sampled.at(s), feature
+            x0, y0 = self.sampled.at_xy(s_prev)
+            return s, (landed_prev[0] + x - x0, landed_prev[1] + y - y0), feature
+        return s, (x, y), feature
 
-    def try_bone(self, bone: int, seg_end: np.ndarray, end_child: int, s_prev: float,
-                 landed_prev: np.ndarray) -> Trial:
+    def try_bone(self, bone: int, seg_end: list[float], end_child: int, s_prev: float,
+                 landed_prev: tuple[float, float]) -> Trial:
         """Placement of one bone's segment (Eqs. 2 and 4).
 
         ``end_child`` is the child whose head ends the segment, or -1 for the bone's tail.
         """
-        head = self.cs.heads[bone]
-        dx, dy, dz = (seg_end - head).tolist()
+        head = self.cs.h[bone]
+        dx, dy, dz = seg_end[0] - head[0], seg_end[1] - head[1], seg_end[2] - head[2]
         length = math.sqrt(dx * dx + dy * dy + dz * dz)
         if length < 1e-12:
             return Trial(None, 0.0, s_prev, landed_prev, 0.0)
         original = self.tail_depth[bone] if end_child < 0 else self.head_depth[end_child]
+        tolerance = self.opt.view_axis_tolerance
         depth = joint_plane_depth(self.view, head, seg_end, length, original, self.plane,
-                                  self.opt.view_axis_tolerance)
+                                  tolerance)
         kept = self.plane or depth == original
         lp = self.projected_length(head, seg_end)
         s, tgt, feature = self.target(s_prev, lp, landed_prev)
@@ -271,31 +329,32 @@ class _Walker:
         if self.crossing and not feature:
             root = stroke_circle_crossing(self.view, self.rays, head, length, depth, s_prev, s)
             if root is not None and abs(root - s) <= max(lp, 2.0 * self.sampled.step):
-                s, tgt, on_stroke = root, self.sampled.at(root), True
-        placed = place_joint(self.view, head, seg_end, length, tgt, depth,
-                             self.opt.view_axis_tolerance)
-        if placed.skipped:
+                s, tgt, on_stroke = root, self.sampled.at_xy(root), True
+        position, _ = place_point(self.view, head, length, seg_end, tgt[0], tgt[1], depth,
+                                  tolerance)
+        if position is None:
             return Trial(None, 0.0, s, tgt, lp, kept)
-        rot, angle = aimed_rotation(self.cs, bone, seg_end, placed.position)
+        rot, angle = aimed_rotation(self.cs, bone, seg_end, position)
         return Trial(rot, angle, s, tgt, lp, kept, on_stroke)
 
 
-def _segment_ends(skeleton: Skeleton, cs: ChainState, bone: int,
-                  kids: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+def _segment_ends(cs: ChainState, bone: int,
+                  kids: np.ndarray) -> list[tuple[list[float], list[int]]]:
     """Group candidate children by head position: ``[(end point, children), ...]``."""
     if kids.size == 0:
-        return [(cs.tails[bone], kids)]
-    groups: list[tuple[np.ndarray, np.ndarray]] = []
-    span = cs.tails[bone] - cs.heads[bone]
-    tol2 = (1e-6 * max(math.sqrt(float(span @ span)), 1e-9)) ** 2
-    for k in kids:
-        for gi, (p, members) in enumerate(groups):
-            gap = cs.heads[k] - p
-            if float(gap @ gap) <= tol2:
-                groups[gi] = (p, np.append(members, k))
+        return [(cs.t[bone], [])]
+    groups: list[tuple[list[float], list[int]]] = []
+    (hx, hy, hz), (tx, ty, tz) = cs.h[bone], cs.t[bone]
+    tol2 = (1e-6 * max(math.sqrt((tx - hx) ** 2 + (ty - hy) ** 2 + (tz - hz) ** 2),
+                       1e-9)) ** 2
+    for k in kids.tolist():
+        kx, ky, kz = cs.h[k]
+        for p, members in groups:
+            if (kx - p[0]) ** 2 + (ky - p[1]) ** 2 + (kz - p[2]) ** 2 <= tol2:
+                members.append(k)
                 break
         else:
-            groups.append((cs.heads[k].copy(), np.array([k])))
+            groups.append((cs.h[k], [k]))
     return groups
 
 
@@ -316,15 +375,16 @@ def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: Cha
     """
     walker = _Walker(skeleton, view, sampled, options, cs)
     fixed = spec.fixed_bones
-    candidates = np.asarray(fixed[:1] if fixed else spec.start_candidates, dtype=int)
-    s_prev, landed_prev = 0.0, sampled.at(0.0)
+    candidates = list(fixed[:1] if fixed else spec.start_candidates)
+    s_prev, landed_prev = 0.0, sampled.at_xy(0.0)
+    renormalize = options.tracking is Tracking.POSITION and options.feature_extraction
     bones, targets, landed, skipped, angles = [], [], [], [], []
     seg_ends: list[int] = []
     depth_moved: list[int] = []
-    while candidates.size:
-        for c in candidates.tolist():
+    while candidates:
+        for c in candidates:
             cs.refresh(c)  # their parent is final now
-        bone = _choose(skeleton, walker, candidates, s_prev, landed_prev)
+        bone = _choose(walker, candidates, s_prev, landed_prev)
         pos = len(bones)
         if fixed is not None:
             kids = np.asarray(fixed[pos + 1:pos + 2], dtype=int)
@@ -332,8 +392,8 @@ def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: Cha
             kids = next_candidates(skeleton, bone, spec.direction_path)
         for k in kids.tolist():
             cs.refresh_head(k)  # where the segment ends before the bone turns
-        ends = _segment_ends(skeleton, cs, bone, kids)
-        trials = [walker.try_bone(bone, end, int(m[0]) if m.size else -1, s_prev, landed_prev)
+        ends = _segment_ends(cs, bone, kids)
+        trials = [walker.try_bone(bone, end, m[0] if m else -1, s_prev, landed_prev)
                   for end, m in ends]
         best = _choose_branch(walker, bone, ends, trials) if len(ends) > 1 else 0
         trial = trials[best]
@@ -341,22 +401,20 @@ def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: Cha
         if spec.stop_when_exhausted and fixed is None and pos > 0:
             if sampled.length - s_prev < 0.5 * trial.projected:
                 break
-        offset_local = mv3(cs.frames[bone].T, end - cs.heads[bone])
+        offset_local = cs.local_offset(bone, end)
         if trial.rotation is None:
             skipped.append(bone)
         else:
             cs.set_rotation(bone, trial.rotation)
         if not trial.depth_kept:
             depth_moved.append(bone)
-        new_end = cs.heads[bone] + mv3(cs.frames[bone], offset_local)
-        land = np.array(view.project_point(*new_end.tolist()))
+        land = view.project_point(*cs.segment_point(bone, offset_local))
         s = trial.param
-        if (options.tracking is Tracking.POSITION and options.feature_extraction
-                and not trial.on_stroke):
-            s = renormalize_param(sampled, land, s, max(trial.projected / 3.0,
-                                                        2.0 * sampled.step))
+        if renormalize and not trial.on_stroke:
+            s = renormalize_param(sampled, np.array(land), s,
+                                  max(trial.projected / 3.0, 2.0 * sampled.step))
         bones.append(bone)
-        seg_ends.append(int(members[0]) if members.size else -1)
+        seg_ends.append(members[0] if members else -1)
         targets.append(trial.target)
         landed.append(land)
         angles.append(trial.angle if trial.rotation is not None else 0.0)
@@ -369,7 +427,7 @@ def pose_part(skeleton: Skeleton, view: ViewOps, sampled: SampledStroke, cs: Cha
                        tuple(seg_ends), tuple(depth_moved))
 
 
-def _choose_branch(walker: _Walker, bone: int, ends: list[tuple[np.ndarray, np.ndarray]],
+def _choose_branch(walker: _Walker, bone: int, ends: list[tuple[list[float], list[int]]],
                    trials: list[Trial]) -> int:
     """At a branch whose children start at different points, the group to continue into.
 
@@ -383,33 +441,33 @@ def _choose_branch(walker: _Walker, bone: int, ends: list[tuple[np.ndarray, np.n
     cs = walker.cs
     costs = []
     for (end, members), trial in zip(ends, trials, strict=True):
-        if trial.rotation is None or members.size == 0:
-            costs.append(np.inf if trial.rotation is None else trial.angle)
+        if trial.rotation is None or not members:
+            costs.append(math.inf if trial.rotation is None else trial.angle)
             continue
         trial_cs = cs.copy()
-        offset = trial_cs.frames[bone].T @ (end - trial_cs.heads[bone])
+        offset = trial_cs.local_offset(bone, end)
         trial_cs.set_rotation(bone, trial.rotation)
-        landed = walker.view.project(trial_cs.heads[bone] + trial_cs.frames[bone] @ offset)
+        landed = walker.view.project_point(*trial_cs.segment_point(bone, offset))
         walker.cs = trial_cs
         try:
-            for m in members.tolist():
+            for m in members:
                 trial_cs.refresh(m)
-            child = [walker.try_bone(m, trial_cs.tails[m], -1, trial.param, landed)
-                     for m in members.tolist()]
+            child = [walker.try_bone(m, trial_cs.t[m], -1, trial.param, landed)
+                     for m in members]
         finally:
             walker.cs = cs
-        costs.append(min(t.angle if t.rotation is not None else np.inf for t in child))
-    return int(np.argmin(costs)) if np.isfinite(np.min(costs)) else 0
+        costs.append(min(t.angle if t.rotation is not None else math.inf for t in child))
+    return int(np.argmin(costs)) if math.isfinite(min(costs)) else 0
 
 
-def _choose(skeleton: Skeleton, walker: _Walker, candidates: np.ndarray, s_prev: float,
-            landed_prev: np.ndarray) -> int:
+def _choose(walker: _Walker, candidates: list[int], s_prev: float,
+            landed_prev: tuple[float, float]) -> int:
     """The candidate bone whose own alignment needs the smallest rotation."""
-    if candidates.size == 1:
-        return int(candidates[0])
+    if len(candidates) == 1:
+        return candidates[0]
     cs = walker.cs
     angles = []
     for c in candidates:
-        trial = walker.try_bone(int(c), cs.tails[c], -1, s_prev, landed_prev)
-        angles.append(trial.angle if trial.rotation is not None else np.inf)
-    return int(candidates[int(np.argmin(angles))])
+        trial = walker.try_bone(c, cs.t[c], -1, s_prev, landed_prev)
+        angles.append(trial.angle if trial.rotation is not None else math.inf)
+    return candidates[int(np.argmin(angles))]

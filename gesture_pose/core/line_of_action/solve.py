@@ -62,8 +62,7 @@ class StrokePoseResult:
 
 def _path_points(cs: ChainState, bones: tuple[int, ...]) -> np.ndarray:
     """Joint positions along a fixed downward chain, shape ``(k + 1, 3)``."""
-    pts = [cs.heads[b] for b in bones]
-    return np.array(pts + [cs.tails[bones[-1]]])
+    return np.array([cs.h[b] for b in bones] + [cs.t[bones[-1]]])
 
 
 def _projected_length(view: ViewOps, points: np.ndarray) -> float:
@@ -79,8 +78,8 @@ def _pieces(stroke: Stroke, plan: ChainPlan, view: ViewOps, cs: ChainState) -> l
     begin, end = plan.parts
     lb = _projected_length(view, _path_points(cs, begin.fixed_bones))
     le = _projected_length(view, _path_points(cs, end.fixed_bones))
-    lm = float(np.linalg.norm(view.project(cs.heads[begin.fixed_bones[0]])
-                              - view.project(cs.heads[end.fixed_bones[0]])))
+    ends = view.project(np.array([cs.h[begin.fixed_bones[0]], cs.h[end.fixed_bones[0]]]))
+    lm = float(np.linalg.norm(ends[0] - ends[1]))
     total = lb + lm + le
     if total < 1e-9:
         raise InputError("The chain between the start and end bones is invisible in this view.")
@@ -108,7 +107,7 @@ def _run_part(skeleton: Skeleton, view: ViewOps, cs: ChainState, piece: Stroke, 
     """Translate (and scale) the piece, then pose its chain."""
     shape = options.tracking is Tracking.SHAPE
     spec = PartSpec(part.start_candidates, part.fixed_bones, plan.direction_path, not shape)
-    start_px = view.project(cs.heads[part.start_candidates[0]])
+    start_px = view.project(np.array(cs.h[part.start_candidates[0]]))
     bones = part.fixed_bones
     if shape and bones is None:
         # The chain must be known before the stroke is scaled to its length: find it by
