@@ -108,6 +108,63 @@ def test_curve_sketch_from_svg_is_accepted(registered):
     assert np.median(_errors(arm, emb, camera)) < 5.0
 
 
+def _curve_sketch(arm, camera):
+    """The traced contours of ``arm`` as a curve object (what the SVG importer makes)."""
+    traced = op.trace_character(arm, camera)
+    curve = bpy.data.curves.new("Svg", "CURVE")
+    curve.dimensions = "3D"
+    for pts in traced.world(camera):
+        spline = curve.splines.new("POLY")
+        spline.points.add(len(pts) - 1)
+        spline.points.foreach_set("co", np.c_[pts, np.ones(len(pts))].ravel())
+    obj = bpy.data.objects.new("Svg", curve)
+    bpy.context.scene.collection.objects.link(obj)
+    bpy.context.view_layer.update()
+    return obj
+
+
+def _curve_points(obj) -> np.ndarray:
+    out = []
+    for spline in obj.data.splines:
+        co = np.zeros(4 * len(spline.points))
+        spline.points.foreach_get("co", co)
+        out.append(co)
+    return np.concatenate(out)
+
+
+def test_curve_sketch_gets_a_fit_overlay_object(registered):
+    """A curve sketch cannot hold Grease Pencil strokes: its fit goes to its own object."""
+    arm, cam = _humanoid()
+    builders.pose_humanoid(arm, "step")
+    bpy.context.view_layer.update()
+    camera = camera_from_object(cam, bpy.context.scene)
+    sketch = _curve_sketch(arm, camera)
+    before = _curve_points(sketch)
+    n_objects = len(bpy.data.objects)
+    for _ in range(2):  # fitting again replaces the overlay in the same object
+        with bpy.context.temp_override(active_object=arm, object=arm):
+            assert bpy.ops.gesture_pose.fit_drawing(armature=arm.name,
+                                                    sketch=sketch.name) == {"FINISHED"}
+        fits = [o for o in bpy.data.objects if o.get(op.FIT_OF) == sketch.name]
+        assert len(fits) == 1 and fits[0].type == "GREASEPENCIL"
+        assert len(bpy.data.objects) == n_objects + 1
+        fit = fits[0]
+        assert [layer.name for layer in fit.data.layers] == [op.FIT_LAYER]
+        emb, _ = op.fit_scene_drawing(arm, sketch, camera)
+        expected = sum(len(v) for v in op.fit_overlay(emb).values())
+        assert len(fit.data.layers[op.FIT_LAYER].current_frame().drawing.strokes) == expected
+    # The joints drawn in the overlay lie where the fit put them, seen in the view.
+    drawing = fit.data.layers[op.FIT_LAYER].current_frame().drawing
+    pts = np.array([p.position[:] for s in drawing.strokes for p in s.points])
+    seen = camera.project(pts)
+    for centre in emb.joints2d[:3]:
+        assert np.min(np.linalg.norm(seen - centre, axis=1)) < max(emb.joint_radius) + 1.0
+    np.testing.assert_array_equal(_curve_points(sketch), before)
+    assert sketch.type == "CURVE"
+    with pytest.raises(op.InputError, match="is the fit shown for"):
+        op.fit_scene_drawing(arm, fit, camera)
+
+
 def test_bad_input_is_reported(registered):
     arm, cam = _humanoid()
     camera = camera_from_object(cam, bpy.context.scene)

@@ -5,7 +5,8 @@ drawing once, runs the 2D skeletal embedding (Gesture3D Sections 4-6,
 :func:`gesture_pose.core.gesture.embedding.fit_drawing`) and shows it on a layer of the
 sketch called "gesture_pose fit": joints as circles, bones as lines (blue for the
 character's left side, red for its right, green in the middle) and the contour pieces
-matched to each bone. The user's own layers are never touched.
+matched to each bone. A curve sketch (an imported SVG) gets the same layer on a separate
+Grease Pencil object "<sketch> fit". The user's own layers and objects are never touched.
 
 Trace Contours makes test drawings: it traces the visible occluding contours of the posed,
 skinned character in the view (:mod:`gesture_pose.core.gesture.trace`), optionally roughens
@@ -41,6 +42,8 @@ from ..read_view import camera_from_context
 
 #: Layer of the sketch that shows the fit (replaced by every fit).
 FIT_LAYER = "gesture_pose fit"
+#: Custom property naming the curve sketch a fit overlay object belongs to.
+FIT_OF = "gesture_pose_fit_of"
 #: Layers written by the extension itself, never read as drawing.
 OWN_LAYER_PREFIXES = ("gesture_pose", "Gesture Fit")
 #: Colours of the fit overlay: character's left, right, middle, matched contours.
@@ -90,6 +93,9 @@ def fit_scene_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
         InputError: No strokes, no mesh, a drawing far smaller than the character.
     """
     frame = bpy.context.scene.frame_current if frame is None else int(frame)
+    if sketch_obj.get(FIT_OF):
+        raise InputError(f"'{sketch_obj.name}' is the fit shown for "
+                         f"'{sketch_obj[FIT_OF]}': pick that drawing as the sketch.")
     data = read_armature(arm_obj)
     strokes = [s for s in read_sketch(sketch_obj, frame)
                if not s.layer_name.startswith(OWN_LAYER_PREFIXES)]
@@ -140,19 +146,50 @@ def _material(name: str, colour) -> bpy.types.Material:
     return mat
 
 
+def fit_target(sketch_obj: bpy.types.Object) -> bpy.types.Object:
+    """The Grease Pencil object that shows the fit of ``sketch_obj``.
+
+    A Grease Pencil sketch shows its fit on its own "gesture_pose fit" layer. A curve
+    sketch (an imported SVG) cannot hold Grease Pencil strokes, so its fit goes to a
+    separate Grease Pencil object, "<sketch> fit", created next to it on the first fit,
+    marked with the custom property ``gesture_pose_fit_of`` and reused afterwards; the
+    curve itself is never changed.
+
+    Args:
+        sketch_obj: The drawing (Grease Pencil or curve object).
+
+    Returns:
+        The Grease Pencil object to write the fit layer into.
+    """
+    if sketch_obj.type == "GREASEPENCIL":
+        return sketch_obj
+    for obj in bpy.data.objects:
+        if obj.type == "GREASEPENCIL" and obj.get(FIT_OF) == sketch_obj.name:
+            return obj
+    name = f"{sketch_obj.name} fit"
+    obj = bpy.data.objects.new(name, bpy.data.grease_pencils.new(name))
+    obj[FIT_OF] = sketch_obj.name
+    collections = sketch_obj.users_collection or (bpy.context.scene.collection,)
+    collections[0].objects.link(obj)
+    return obj
+
+
 def draw_fit(sketch_obj: bpy.types.Object, embedding: Embedding2D, camera: Camera,
              depth: float, frame: int | None = None) -> int:
-    """Replace the sketch's fit layer with the embedding, drawn at view depth ``depth``.
+    """Replace the fit layer of the sketch (see :func:`fit_target`) with the embedding.
+
+    The overlay is drawn at view depth ``depth``.
 
     Returns:
         Number of strokes written.
     """
+    target = fit_target(sketch_obj)
     first, count = True, 0
     for key, lines in fit_overlay(embedding).items():
         if not lines:
             continue
         world = [camera.unproject_at_depth(p, depth) for p in lines]
-        write_strokes(sketch_obj, FIT_LAYER, world, frame=frame, replace=first,
+        write_strokes(target, FIT_LAYER, world, frame=frame, replace=first,
                       material=_material(f"gesture_pose fit {key}", COLOURS[key]),
                       color=COLOURS[key])
         first, count = False, count + len(lines)
@@ -198,7 +235,8 @@ class GESTUREPOSE_OT_fit_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
                                      "object holding the drawing (empty: automatic)")
     show_fit: bpy.props.BoolProperty(name="Show Fit", default=True,
                                      description="Draw the fit on the sketch's "
-                                     "'gesture_pose fit' layer")
+                                     "'gesture_pose fit' layer (for a curve sketch, on a "
+                                     "Grease Pencil object '<sketch> fit' next to it)")
 
     def run(self, context: bpy.types.Context) -> set[str]:
         """Read, fit, draw the overlay and report coverage and time."""
@@ -208,7 +246,7 @@ class GESTUREPOSE_OT_fit_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
         camera = camera_from_context(context)
         frame = context.scene.frame_current
         embedding, n_strokes = fit_scene_drawing(arm, sketch, camera, frame)
-        if self.show_fit and sketch.type == "GREASEPENCIL":
+        if self.show_fit:
             data = read_armature(arm)
             depth = float(np.mean(camera.depth(data.skeleton.forward(data.pose).heads)))
             draw_fit(sketch, embedding, camera, depth, frame)
