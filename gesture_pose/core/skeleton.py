@@ -22,7 +22,7 @@ import numpy as np
 
 from .exceptions import InputError
 from .rotations import normalize, swing_twist
-from .rotations3 import reswing
+from .rotations3 import mul, mv, reswing
 
 
 @dataclass(frozen=True)
@@ -135,10 +135,12 @@ class Skeleton:
         """Constant parts of forward kinematics, computed once.
 
         Returns:
-            ``(rel_rot (n, 3, 3), rel_off (n, 3), steps, lengths (n,), children)`` where
-            ``rel_rot_i = R_p^T R_i`` and ``rel_off_i = R_p^T (r_i - r_p)`` (``R_i`` and
-            ``r_i`` for roots) and ``steps`` holds ``(children, parents, children that do
-            not inherit rotation)`` per tree depth.
+            ``(rel_rot (n, 3, 3), rel_off (n, 3), steps, lengths (n,), children, order)``
+            where ``rel_rot_i = R_p^T R_i`` and ``rel_off_i = R_p^T (r_i - r_p)`` (``R_i``
+            and ``r_i`` for roots), ``steps`` holds ``(children, parents, children that do
+            not inherit rotation)`` per tree depth, and ``order`` is ``((bone, parent,
+            free), ...)`` parents first, with ``rel_rot`` and the rest frames as nested
+            lists, for :meth:`_forward_floats`.
         """
         rest = np.asarray(self.rest_frames, dtype=float)
         heads = np.asarray(self.rest_heads, dtype=float)
@@ -156,7 +158,12 @@ class Skeleton:
                 steps.append((kids, p[kids], kids[free[kids]]))
         lengths = np.linalg.norm(np.asarray(self.rest_tails, float) - heads, axis=1)
         kids = tuple(np.flatnonzero(p == i) for i in range(len(p)))
-        return rel_rot, rel_off, tuple(steps), lengths, kids
+        order = [(i, -1, False) for i in np.flatnonzero(~has_parent).tolist()]
+        for k, par, _ in steps:
+            order += [(i, j, bool(free[i])) for i, j in zip(k.tolist(), par.tolist(),
+                                                             strict=True)]
+        floats = (tuple(order), rel_rot.tolist(), rest.tolist())
+        return rel_rot, rel_off, tuple(steps), lengths, kids, floats
 
     @property
     def rest_relative(self) -> tuple[np.ndarray, np.ndarray]:
@@ -205,7 +212,7 @@ class Skeleton:
         return np.flatnonzero(self._ancestry[:, i])
 
     def forward(self, pose: Pose) -> PoseState:
-        """Forward kinematics, vectorized over the bones of each tree depth.
+        """Forward kinematics: per tree depth, or bone by bone for long chains.
 
         Args:
             pose: Local rotations and translations of every bone.
@@ -215,11 +222,26 @@ class Skeleton:
         """
         rel_rot, rel_off, steps = self._fk[:3]
         q = np.asarray(pose.rotations, dtype=float)
+        offsets = rel_off + np.einsum("nij,nj->ni", rel_rot, np.asarray(pose.translations,
+                                                                        dtype=float))
+        if 3 * len(steps) > self.n_bones:  # long chains: numpy's per-depth calls dominate
+            return self._forward_floats(q, offsets)
+        return self._forward_levels(q, offsets)
+
+    def _forward_levels(self, q: np.ndarray, offsets: np.ndarray) -> PoseState:
+        """:meth:`forward` vectorized over the bones of each tree depth.
+
+        Args:
+            q: Local rotations, shape ``(n, 3, 3)``.
+            offsets: Heads in their parents' posed frames (world for roots), ``(n, 3)``.
+
+        Returns:
+            World-space heads, tails and frames.
+        """
+        rel_rot, steps = self._fk[0], self._fk[2]
         # einsum, not matmul: numpy hands batched 3x3 products to BLAS, whose thread pool
         # makes each per-depth call slow on a busy machine.
         frames = np.einsum("nij,njk->nik", rel_rot, q)  # final for roots: R_i Q_i
-        offsets = rel_off + np.einsum("nij,nj->ni", rel_rot, np.asarray(pose.translations,
-                                                                        dtype=float))
         heads = offsets.copy()  # final for roots: r_i + R_i t_i
         for kids, pars, free in steps:
             heads[kids] = heads[pars] + np.einsum("nij,nj->ni", frames[pars], offsets[kids])
@@ -228,6 +250,33 @@ class Skeleton:
                 frames[free] = self.rest_frames[free] @ q[free]
         tails = heads + frames[:, :, 1] * self._fk[3][:, None]
         return PoseState(heads, tails, frames)
+
+    def _forward_floats(self, q: np.ndarray, offsets: np.ndarray) -> PoseState:
+        """:meth:`forward` bone by bone on Python floats.
+
+        For skeletons with few bones per tree depth (chains), where numpy's per-depth calls
+        cost more than the arithmetic.
+
+        Args:
+            q: Local rotations, shape ``(n, 3, 3)``.
+            offsets: Heads in their parents' posed frames (world for roots), ``(n, 3)``.
+
+        Returns:
+            World-space heads, tails and frames.
+        """
+        order, rel_rot, rest = self._fk[5]
+        ql, off = q.tolist(), offsets.tolist()
+        frames: list = [None] * len(ql)
+        heads: list = [None] * len(ql)
+        for i, p, free in order:
+            if p < 0:
+                frames[i], heads[i] = mul(rel_rot[i], ql[i]), off[i]
+                continue
+            frames[i] = mul(rest[i] if free else mul(frames[p], rel_rot[i]), ql[i])
+            (x, y, z), (dx, dy, dz) = heads[p], mv(frames[p], off[i])
+            heads[i] = [x + dx, y + dy, z + dz]
+        f, h = np.array(frames), np.array(heads)
+        return PoseState(h, h + f[:, :, 1] * self._fk[3][:, None], f)
 
     def parent_carry(self, i: int, state: PoseState) -> np.ndarray:
         """The rotation ``C`` with ``F_i = C Q_i`` for bone ``i`` in ``state``.

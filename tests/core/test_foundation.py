@@ -67,8 +67,10 @@ def test_forward_keeps_lengths_and_offsets() -> None:
     np.testing.assert_allclose(st.heads[3], st.tails[2], atol=1e-12)
 
 
+@pytest.mark.parametrize("path", ["_forward_levels", "_forward_floats"])
 @pytest.mark.parametrize("inherit_arm", [True, False])
-def test_forward_matches_recursive_definition(inherit_arm: bool) -> None:
+def test_forward_matches_recursive_definition(inherit_arm: bool, path: str) -> None:
+    """Both forward-kinematics paths (per depth, and bone by bone for chains)."""
     sk = tree_skeleton()
     inherit = sk.inherit_rotation.copy()
     inherit[2] = inherit_arm  # arm.L, which has a child
@@ -76,7 +78,11 @@ def test_forward_matches_recursive_definition(inherit_arm: bool) -> None:
                   inherit, sk.connected, sk.deform)
     q = random_rotations(sk.n_bones)
     t = RNG.normal(size=(sk.n_bones, 3)) * 0.1
-    st = sk.forward(Pose(q, t))
+    rel_rot, rel_off = sk.rest_relative
+    st = getattr(sk, path)(q, rel_off + np.einsum("nij,nj->ni", rel_rot, t))
+    whole = sk.forward(Pose(q, t))
+    np.testing.assert_allclose(whole.frames, st.frames, atol=1e-12)
+    np.testing.assert_allclose(whole.tails, st.tails, atol=1e-12)
     R, r = sk.rest_frames, sk.rest_heads
     for i in range(sk.n_bones):
         p = sk.parents[i]

@@ -74,10 +74,6 @@ def segment_end(skeleton: Skeleton, state: PoseState, bone: int, child: int) -> 
     return state.tails[bone] if child < 0 else state.heads[child]
 
 
-def _same_point(a: np.ndarray, b: np.ndarray, scale: float) -> bool:
-    return float(np.linalg.norm(a - b)) <= _COINCIDE * max(scale, 1.0)
-
-
 def pick_start(
     skeleton: Skeleton, state: PoseState, camera: Camera, point: np.ndarray, radius: float
 ) -> tuple[int, ...]:
@@ -112,7 +108,8 @@ def pick_start(
         )
     scale = float(np.max(np.ptp(joints, axis=0)))
     where = joints[best]
-    starts = tuple(int(i) for i in range(n) if _same_point(state.heads[i], where, scale))
+    near = np.linalg.norm(state.heads - where, axis=1) <= _COINCIDE * max(scale, 1.0)
+    starts = tuple(np.flatnonzero(near).tolist())
     if not starts:
         raise InputError(
             f"The stroke starts at the end of bone '{skeleton.names[best - n]}', which has no "
