@@ -36,19 +36,6 @@ def mul(a: M3, b: M3) -> M3:
          a20 * b02 + a21 * b12 + a22 * b22]]
 
 
-def mul_bt(a: M3, b: M3) -> M3:
-    """``a @ b.T`` for 3x3 nested lists, written out."""
-    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
-    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
-    return [
-        [a00 * b00 + a01 * b01 + a02 * b02, a00 * b10 + a01 * b11 + a02 * b12,
-         a00 * b20 + a01 * b21 + a02 * b22],
-        [a10 * b00 + a11 * b01 + a12 * b02, a10 * b10 + a11 * b11 + a12 * b12,
-         a10 * b20 + a11 * b21 + a12 * b22],
-        [a20 * b00 + a21 * b01 + a22 * b02, a20 * b10 + a21 * b11 + a22 * b12,
-         a20 * b20 + a21 * b21 + a22 * b22]]
-
-
 def transpose(a: M3) -> M3:
     """``a.T`` for a 3x3 nested list."""
     return [[a[0][0], a[1][0], a[2][0]], [a[0][1], a[1][1], a[2][1]],
@@ -138,7 +125,7 @@ def swap_swing(q: M3, target: V3) -> M3:
     s_new = _swing_from_y(unit)
     if s_old is None or s_new is None:
         return mul(between(_Y_AXIS, unit)[0], twist(q))
-    return mul(mul_bt(s_new, s_old), q)  # S_new S_old^T q
+    return mul(mul(s_new, transpose(s_old)), q)  # S_new S_old^T q
 
 
 def reswing(q: np.ndarray, target: np.ndarray) -> np.ndarray:
