@@ -151,7 +151,8 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     ``stations`` positions; a station conforms when a contour runs there (within
     ``max(epsilon, r / 2)``) along the bone (within ``conform_angle``), and
     ``Ccf = 1 - (left + right) / 2`` with the conforming fractions per side. ``Cc`` is 1 when
-    the bone's axis crosses a contour its end joints come from, or when both end joints
+    the bone's axis crosses a contour its end joints come from between the two joint
+    circles (see :func:`crossing_stations`), or when both end joints
     come from the same contour but lie on opposite sides of it.
 
     Args:
@@ -198,8 +199,8 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
             ok &= ~blocked[owner]
         cover.append(ok.mean(axis=2))
     ccf = 1.0 - 0.5 * (cover[0] + cover[1])
-    ta = np.linspace(0.1, 0.9, 9)
-    q = pa[:, None, None, :] + ta[None, None, :, None] * d[:, :, None, :]
+    ta = crossing_stations(dist, ra, rb, eps)
+    q = pa[:, None, None, :] + ta[..., None] * d[:, :, None, :]
     dq, owner = drawing.lookup(q)
     grp = drawing.group[owner]
     own = (grp == ga[:, None, None]) | (grp == gb[None, :, None])
@@ -208,6 +209,35 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     opposite = same & (sa[:, None] * sb[None, :] < 0)
     cc = np.maximum(cc, opposite.astype(float))
     return 1.0 - (1.0 - cl) * (1.0 - ccf) * (1.0 - params.w_consistency * cc)
+
+
+def crossing_stations(dist: np.ndarray, ra: np.ndarray, rb: np.ndarray, eps: float,
+                      count: int = 9) -> np.ndarray:
+    """Axis parameters where the consistency term ``Cc`` looks for crossed contours.
+
+    The bone's axis is probed between its two joint circles, one resampling step beyond
+    each (the crossing test's tolerance is half a step): inside a joint's circle the
+    contour that crosses the axis is that joint's own outline (the rounded end of a limb
+    part, or a drawn joint ball), which a correct placement always crosses; only a contour
+    crossed between the circles means the bone leaves its shape.
+
+    Args:
+        dist: Drawn bone lengths, pixels, ``(Ka, Kb)``.
+        ra: Head radii, pixels, ``(Ka,)``.
+        rb: Tail radii, pixels, ``(Kb,)``.
+        eps: Resampling step, pixels.
+        count: Stations per bone.
+
+    Returns:
+        Parameters in ``[0, 1]``, shape ``(Ka, Kb, count)``; bones shorter than their two
+        radii get stations around their middle only.
+    """
+    length = np.maximum(dist, 1e-9)
+    lo = np.clip((ra[:, None] + eps) / length, 0.1, 0.5)
+    hi = np.clip(1.0 - (rb[None, :] + eps) / length, 0.5, 0.9)
+    hi = np.maximum(hi, lo)
+    s = np.linspace(0.0, 1.0, count)
+    return lo[..., None] + (hi - lo)[..., None] * s
 
 
 def bone_frame(drawing: Drawing, pa: np.ndarray, pb: np.ndarray, idx: np.ndarray):

@@ -64,7 +64,7 @@ class GestureParams:
     coarse_cell: float = 1.5
     coarse_stations: int = 4
     coarse_grid: int = 40
-    fine_reach: float = 3.0
+    fine_reach: float = 5.0
     fine_grid_reach: float = 2.0
     max_radii: int = 3
     min_coverage: float = 0.85
@@ -87,9 +87,16 @@ def posed_joints(solving: SolvingSkeleton, skeleton: Skeleton, pose: Pose) -> np
 
 def _near(cands: JointCandidates, centre: np.ndarray, reach: float, count: int
           ) -> JointCandidates:
-    """The ``count`` cheapest candidates within ``reach`` of ``centre``."""
-    sel = np.flatnonzero(np.linalg.norm(cands.positions - centre, axis=1) <= reach)
-    return best(cands.take(sel), count)
+    """The ``count`` cheapest candidates within ``reach`` of ``centre``.
+
+    Equal costs (many placements fit the contours perfectly) are broken by the distance to
+    ``centre``, so the kept set is the neighbourhood of the coarse answer rather than
+    whichever contour samples come first.
+    """
+    dist = np.linalg.norm(cands.positions - centre, axis=1)
+    sel = np.flatnonzero(dist <= reach)
+    order = sel[np.lexsort((dist[sel], np.round(cands.unary[sel], 6)))][:count]
+    return cands.take(np.sort(order))
 
 
 def _two_pass(problem, contour: list[JointCandidates], mid_r: np.ndarray, params,

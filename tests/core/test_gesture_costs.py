@@ -1,0 +1,66 @@
+"""Pairwise bone cost of the 2D embedding (Gesture3D Section 5.2, consistency term Cc)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gesture_pose.core.gesture.costs import CostParams, crossing_stations, pair_cost
+from gesture_pose.core.gesture.preprocess import preprocess
+from gesture_pose.core.stroke import Stroke
+
+from .test_gesture_fixtures import arc, segment
+
+R = 30.0  # limb radius, pixels: the balls' outlines cross the axis at t = 0.1 and 0.9
+
+
+def _limb(cut_at: float | None) -> list[Stroke]:
+    """A straight limb from (100, 300) to (400, 300), outlined at radius R, with a drawn
+    joint ball at each end (circles of radius R around the joints, as traced from a mesh
+    made of parts) and optionally a line across the limb at x = ``cut_at``."""
+    head, tail = np.array([100.0, 300.0]), np.array([400.0, 300.0])
+    strokes = [segment(head + [0, R], tail + [0, R], 60),
+               segment(head - [0, R], tail - [0, R], 60),
+               arc(head, R, 0.0, 2 * np.pi, 32), arc(tail, R, 0.0, 2 * np.pi, 32)]
+    if cut_at is not None:
+        strokes.append(segment([cut_at, 300 - R], [cut_at, 300 + R], 8))
+    return [Stroke(s) for s in strokes]
+
+
+def _cost(strokes: list[Stroke]) -> float:
+    d = preprocess(strokes)
+    # The joints come from their balls' contours (group of the ball strokes).
+    head_group = d.group[d.tree.query([100.0 + R, 300.0])[1]]
+    tail_group = d.group[d.tree.query([400.0 - R, 300.0])[1]]
+    params = CostParams(w_direction=0.0)
+    cost = pair_cost(d, np.array([[100.0, 300.0]]), np.array([R]), np.array([head_group]),
+                     np.array([-1]), np.array([[400.0, 300.0]]), np.array([R]),
+                     np.array([tail_group]), np.array([-1]), 300.0, params)
+    return float(cost[0, 0])
+
+
+def test_a_bone_crossing_only_its_joint_balls_is_consistent():
+    # The axis crosses each ball's outline inside that joint's circle: the outline of the
+    # joint itself, not the bone leaving its shape. Length and conformity are exact.
+    assert _cost(_limb(None)) < 0.05
+
+
+def test_a_contour_of_its_joints_crossed_between_the_circles_is_inconsistent():
+    # A line of the tail ball's own contour group across the middle of the limb: Cc = 1,
+    # so E = 1 - (1 - Cl)(1 - Ccf)(1 - Wc) >= Wc = 0.9.
+    strokes = _limb(None)
+    ball = strokes[3].points
+    # Join the cut to the tail ball so it belongs to the same contour group.
+    cut = np.concatenate([segment([250.0, 300 - R], [250.0, 300 + R], 8),
+                          segment([250.0, 300 + R], ball[0], 20)])
+    strokes[3] = Stroke(np.concatenate([cut, ball]))
+    assert _cost(strokes) >= 0.9
+
+
+def test_crossing_stations_stay_between_the_joint_circles():
+    t = crossing_stations(np.array([[300.0]]), np.array([35.0]), np.array([50.0]), 10.0)
+    assert t.shape == (1, 1, 9)
+    np.testing.assert_allclose(t[0, 0, [0, -1]], [45.0 / 300.0, 1.0 - 60.0 / 300.0])
+    assert np.all(np.diff(t[0, 0]) > 0)
+    # A bone shorter than its circles is probed at its middle only.
+    short = crossing_stations(np.array([[30.0]]), np.array([20.0]), np.array([20.0]), 10.0)
+    np.testing.assert_allclose(short, 0.5)
