@@ -9,6 +9,7 @@ from gesture_pose.core.exceptions import SolverError
 from gesture_pose.core.gesture.depth import (
     DepthOptions,
     energies,
+    occlusions,
     ordering,
     qp,
     regularity,
@@ -127,10 +128,13 @@ def test_t_junction_detection_from_contours():
     stem = np.stack([np.full(21, 450.0), np.linspace(260, 300, 21)], 1)
     free = np.stack([np.full(21, 380.0), np.linspace(100, 200, 21)], 1)
     emb = _embedding_with_pieces(base, {2: [top], 3: [stem], 0: [free]}, [top, stem, free])
-    found = ordering.detect_junctions(emb)
-    assert [(s, t) for s, t, _ in found] == [(3, 2)]
-    np.testing.assert_allclose(found[0][2], [450.0, 300.0])
-    cons = ordering.ordering_constraints(emb, scale=200.0, names=("r", "n", "a", "f", "b", "g"))
+    found = occlusions.detect_junctions(emb)
+    assert [(j.stem_bone, j.top_bone) for j in found] == [(3, 2)]
+    np.testing.assert_allclose(found[0].point, [450.0, 300.0])
+    names = ("r", "n", "a", "f", "b", "g")
+    # Intra-part T-junctions are off by default (unreliable on traced drawings).
+    assert ordering.ordering_constraints(emb, scale=200.0, names=names) == []
+    cons = ordering.ordering_constraints(emb, scale=200.0, names=names, t_junctions=True)
     assert len(cons) == 1 and cons[0].kind == "t_junction"
     # fore.L shares its head joint with arm.L's tail: its tail must be deeper.
     assert cons[0].back.tolist() == [solving.tail_joint[3]]
@@ -328,24 +332,27 @@ def test_pose_error_aligns_the_root_and_counts_depth_order():
     assert err.mean_error == pytest.approx(100.0 * (0 + 1.0 + 1.0) / 3 / 2.3)
 
 
-def test_junctions_between_nearby_parts_are_not_occlusions():
+def test_junctions_between_parts_apart_in_the_drawing_are_not_occlusions():
     sk = tree_skeleton()
     cam = front_camera(ortho=True)
     solving = solving_skeleton(sk)
     base = project_embedding(sk, solving, Pose.identity(6), cam)
-    # An arm.R outline stopping across an arm.L outline: the two arms hang off the root
-    # (two steps apart), so by default this is not read as an occlusion.
+    # An arm.R outline stopping across an arm.L outline: the two arms are drawn on either
+    # side of the body (their tubes do not overlap), so this is not read as an occlusion.
     top = np.stack([np.linspace(400, 500, 51), np.full(51, 300.0)], 1)
     stem = np.stack([np.full(21, 450.0), np.linspace(260, 300, 21)], 1)
     emb = _embedding_with_pieces(base, {2: [top], 4: [stem]}, [top, stem])
-    assert [(s, t) for s, t, _ in ordering.detect_junctions(emb)] == [(4, 2)]
+    assert [(j.stem_bone, j.top_bone) for j in occlusions.detect_junctions(emb)] == [(4, 2)]
+    assert occlusions.tubes_overlap(emb, 4, 2) > 1.0
     assert ordering.ordering_constraints(emb, scale=200.0) == []
-    cons = ordering.ordering_constraints(emb, scale=200.0, min_parts=2)
+    cons = ordering.ordering_constraints(emb, scale=200.0, overlap=np.inf)
     assert len(cons) == 1 and cons[0].kind == "occlusion"
     assert set(cons[0].back.tolist()) <= {solving.head_joint[4], solving.tail_joint[4]}
+    # Bones two steps apart are not enough with min_parts=3.
+    assert ordering.ordering_constraints(emb, scale=200.0, overlap=np.inf, min_parts=3) == []
     # Evidence both ways cancels out: an arm.L outline also stops across the arm.R one.
     other = np.stack([np.linspace(420, 450, 16), np.full(16, 280.0)], 1)
     emb2 = _embedding_with_pieces(base, {2: [top, other], 4: [stem]}, [top, stem, other])
-    found = {(s, t) for s, t, _ in ordering.detect_junctions(emb2)}
+    found = {(j.stem_bone, j.top_bone) for j in occlusions.detect_junctions(emb2)}
     assert found == {(4, 2), (2, 4)}
-    assert ordering.ordering_constraints(emb2, scale=200.0, min_parts=2) == []
+    assert ordering.ordering_constraints(emb2, scale=200.0, overlap=np.inf) == []

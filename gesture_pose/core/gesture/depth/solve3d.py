@@ -31,10 +31,9 @@ from ...camera import Camera
 from ...exceptions import InputError, SolverError
 from ...skeleton import Pose, Skeleton
 from ..types import Embedding2D
-from . import energies, ordering, regularity, symmetry, twist
+from . import energies, ordering, regularity, start, symmetry, twist
 from .qp import LinearConstraint, build_qp, solve_qp
 from .rig import rig_rows
-from .start import start_pose
 
 
 @dataclass(frozen=True)
@@ -56,6 +55,15 @@ class DepthOptions:
             the same-direction rule (ours: links of one straight limb shorten alike).
         spline_weight: Weight of the soft limb-spline term.
         use_contacts: Keep drawn contacts as depth constraints.
+        junction_tolerance: Largest gap between a contour end and the contour it stops
+            on for a T-junction, resampling steps (:mod:`.occlusions`).
+        junction_interior: Smallest arc length from a junction to the ends of the contour
+            it stops on, resampling steps.
+        occlusion_min_parts: Fewest parent-child steps between the bones of an
+            inter-part occlusion.
+        occlusion_overlap: Largest closest approach of an occlusion's two drawn bone axes
+            over the sum of their radii (their tubes must overlap).
+        t_junctions: Use intra-part T-junctions.
         symmetry_angle: Largest mirrored-bone angle for the symmetry post-process, radians;
             0 disables it.
         max_iterations: SQP iteration limit.
@@ -67,6 +75,9 @@ class DepthOptions:
         merit_weight: Weight of the constraint violation (per mean link length) against
             the drawing energy in the step-halving line search.
         toward_viewer: Default side of a foreshortened bone the drawing does not decide.
+        read_facing: Read from the left/right order of the drawn hips and shoulders
+            whether the character is turned around; if so the bind pose's depth sides
+            (start and E_v's reference) and the default side are reversed.
         soft_penalty: Slack penalty when the hard constraints contradict each other.
     """
 
@@ -79,12 +90,18 @@ class DepthOptions:
     parallel_ratio_gap: float = 0.1
     spline_weight: float = 1.0
     use_contacts: bool = True
+    junction_tolerance: float = 0.5
+    junction_interior: float = 1.0
+    occlusion_min_parts: int = 2
+    occlusion_overlap: float = 1.0
+    t_junctions: bool = False
     symmetry_angle: float = float(np.radians(10.0))
     max_iterations: int = 100
     tolerance: float = 1e-4
     energy_tolerance: float = 1e-4
     merit_weight: float = 10.0
     toward_viewer: bool = True
+    read_facing: bool = True
     soft_penalty: float = 1e7
 
 
@@ -149,6 +166,7 @@ class _Setup:
     triples: np.ndarray
     rest_joints: np.ndarray
     joint_names: tuple[str, ...]
+    facing: float = 1.0
 
     def all_constraints(self, X: np.ndarray) -> list[LinearConstraint]:
         """The fixed constraints plus the same-direction rows built at positions ``X``."""
@@ -173,6 +191,8 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
     lengths = np.linalg.norm(X_rest[b] - X_rest[a], axis=1)
     n_j = jmap.n_joints
     ratios = energies.foreshortening_ratios(embedding.joints2d, a, b, lengths, frame.scale)
+    facing = (start.drawn_facing(s, embedding.joints2d, X_rest, frame) if opts.read_facing
+              else 1.0)
     weights = energies.foreshortening_weights(ratios, opts.sigma_f, opts.free_ratio)
     visible = np.asarray(embedding.joint_visible, dtype=bool)
     confidence = np.where(visible[a] & visible[b], 1.0, opts.hidden_weight)
@@ -182,7 +202,7 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
                                       confidence),
              energies.foreshortening_term(
                  frame, a, b, lengths, weights, n_j,
-                 frame.depth(X_rest[b] - X_rest[a]) if opts.bind_depth else None)]
+                 facing * frame.depth(X_rest[b] - X_rest[a]) if opts.bind_depth else None)]
     free = np.zeros(n_j, bool)
     free[b] = weights == 0.0
     spline = regularity.spline_term(embedding, X_rest, frame, opts.spline_weight, free)
@@ -201,7 +221,10 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
     if len(contacts):
         constraints.append(regularity.contact_constraints(contacts, embedding, frame,
                                                           joint_names))
-    order = ordering.ordering_constraints(embedding, frame.scale, names)
+    order = ordering.ordering_constraints(embedding, frame.scale, names,
+                                          opts.junction_tolerance, opts.junction_interior,
+                                          opts.occlusion_min_parts, opts.occlusion_overlap,
+                                          opts.t_junctions)
     if order:
         rows = ordering.ordering_rows(order, frame.forward, n_j)
         # A hair of extra margin so that the nonlinear constraints hold, not only their
@@ -211,7 +234,7 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
                                             rows.labels))
     kappa = 1.0 / max(float(np.sum(lengths**2)), 1e-12)
     setup = _Setup(jmap, frame, (a, b), lengths, ratios, terms, constraints, order, kappa,
-                   triples, X_rest, joint_names)
+                   triples, X_rest, joint_names, facing)
     return setup, X_rest, contacts, names
 
 
@@ -282,8 +305,8 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
                                             link_confidence)
     timings = {"setup": time.perf_counter() - t0}
     t1 = time.perf_counter()
-    current, _ = start_pose(skeleton, setup.jmap, setup.frame, setup.order, embedding,
-                            bind, opts.toward_viewer, pinned)
+    current, _ = start.start_pose(skeleton, setup.jmap, setup.frame, setup.order, embedding,
+                                  bind, opts.toward_viewer, pinned, setup.facing)
     timings["start"] = time.perf_counter() - t1
     jm = setup.jmap
     warnings: list[str] = []

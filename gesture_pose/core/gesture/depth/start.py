@@ -3,7 +3,11 @@
 A drawn link fixes how much a bone leaves the view plane, ``sqrt(l^2 - l_2d^2)``, not to
 which side. The start aims every solving bone at its drawn direction, lifted by that
 amount, on the bind pose's side when the bone clearly has one (depth slope above 0.3), else
-towards the viewer; then sides that break depth-order constraints are flipped greedily.
+towards the character's front (its ``.L`` side is its own left), or towards the viewer when
+the front is not clear (a side view); then sides that break depth-order constraints are
+flipped greedily. When the drawing shows the character turned around (its left and right
+hips or shoulders swapped in the image, :func:`drawn_facing`), the bind pose's sides and
+its front are reversed.
 Starting lifted matters: from a flat pose the linearized projection cannot shorten a bone
 (the depth direction is a saddle), so the SQP alone would never leave the view plane.
 """
@@ -13,10 +17,98 @@ from __future__ import annotations
 import numpy as np
 
 from ...skeleton import Pose, Skeleton
-from ..types import Embedding2D
+from ..solving import symmetric_joint_pairs
+from ..types import Embedding2D, SolvingSkeleton
 from . import twist
 from .energies import ViewFrame
 from .ordering import OrderingConstraint, violations
+
+
+def _first_pairs(solving: SolvingSkeleton) -> np.ndarray:
+    """The left/right joint pairs nearest the root (hips, shoulders), shape ``(p, 2)``."""
+    pairs = symmetric_joint_pairs(solving)
+    if not len(pairs):
+        return pairs
+    jp = np.asarray(solving.joint_parent)
+    depth = np.zeros(len(jp), int)
+    for j in range(len(jp)):
+        k = j
+        while jp[k] >= 0:
+            k, depth[j] = jp[k], depth[j] + 1
+    level = depth[pairs].max(axis=1)
+    return pairs[level == level.min()]
+
+
+def bind_front(solving: SolvingSkeleton, rest_joints: np.ndarray, frame: ViewFrame,
+               min_slope: float = 0.3) -> float:
+    """Which way the bind pose faces along the view: -1 towards the viewer, +1 away, 0 unclear.
+
+    A rig's ``.L`` side is the character's own left, so with the first joint of each pair
+    on the left, the character faces ``(left - right) x up`` (``up`` the view's). The
+    answer is 0 when that direction is within ``asin(min_slope)`` of the view plane (a
+    side view) or the rig has no left/right pairs.
+
+    Args:
+        solving: The solving skeleton.
+        rest_joints: Bind-pose joints, world units, shape ``(J, 3)``.
+        frame: The view.
+        min_slope: Smallest depth component of the unit facing direction.
+
+    Returns:
+        The sign of the facing direction's depth, or 0.
+    """
+    pairs = _first_pairs(solving)
+    if not len(pairs):
+        return 0.0
+    names = solving.joint_bones
+    left = np.array([1.0 if names[i].rpartition(" ")[0].lower().endswith(("l", "left"))
+                     or "Left" in names[i] else -1.0 for i, _ in pairs])
+    across = np.sum(left[:, None] * (rest_joints[pairs[:, 0]] - rest_joints[pairs[:, 1]]),
+                    axis=0)
+    front = np.cross(across, frame.up)
+    norm = float(np.linalg.norm(front))
+    if norm <= 1e-12:
+        return 0.0
+    slope = float(front @ frame.forward) / norm
+    return float(np.sign(slope)) if abs(slope) >= min_slope else 0.0
+
+
+def drawn_facing(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.ndarray,
+                 frame: ViewFrame, min_agreement: float = 0.5, min_width: float = 0.3
+                 ) -> float:
+    """Whether the drawing shows the character turned around from its bind pose (-1) or not.
+
+    A character turned half-way round about the view's up axis shows its left side where
+    the bind pose shows its right: the image-x order of its left/right joint pairs is
+    reversed. Only the pairs nearest the root (hips, shoulders) are read, as hands and
+    feet cross freely, and only when the bind pose shows them apart (image-x difference at
+    least ``min_width`` of their distance; not in a side view). Each pair votes with its
+    drawn image-x difference times the bind pose's; a reversal needs the votes to agree on
+    at least ``min_agreement`` of their total weight.
+
+    Args:
+        solving: The solving skeleton.
+        joints2d: Drawn joints, pixels, shape ``(J, 2)``.
+        rest_joints: Bind-pose joints, world units, shape ``(J, 3)``.
+        frame: The view.
+        min_agreement: Smallest ``|sum| / sum(|votes|)`` to read a reversal.
+        min_width: Smallest bind image-x difference of a voting pair over its distance.
+
+    Returns:
+        -1.0 when the drawing shows the character turned around, else 1.0.
+    """
+    pairs = _first_pairs(solving)
+    if not len(pairs):
+        return 1.0
+    rest = rest_joints[pairs[:, 0]] - rest_joints[pairs[:, 1]]
+    bind = rest @ frame.right
+    wide = np.abs(bind) >= min_width * np.maximum(np.linalg.norm(rest, axis=1), 1e-12)
+    drawn = (joints2d[pairs[:, 0]] - joints2d[pairs[:, 1]])[:, 0] / frame.scale
+    votes = (drawn * bind)[wide]
+    total = float(np.sum(np.abs(votes)))
+    if total <= 0.0 or float(np.sum(votes)) >= -min_agreement * total:
+        return 1.0
+    return -1.0
 
 
 def lifted_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
@@ -56,8 +148,8 @@ def lifted_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
 
 def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                order: list[OrderingConstraint], embedding: Embedding2D, bind: Pose,
-               toward_viewer: bool = True, pinned: np.ndarray | None = None
-               ) -> tuple[Pose, np.ndarray]:
+               toward_viewer: bool = True, pinned: np.ndarray | None = None,
+               facing: float = 1.0) -> tuple[Pose, np.ndarray]:
     """The lifted start pose and the depth side of each solving bone.
 
     Args:
@@ -69,6 +161,8 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         bind: The bind pose.
         toward_viewer: Default side of a bone the bind pose does not decide.
         pinned: Bones kept at their bind rotation, ``(n,)`` bool (full skeleton).
+        facing: -1 when the drawing shows the character turned around
+            (:func:`drawn_facing`): the bind pose's sides and the default are reversed.
 
     Returns:
         ``(pose, signs)``: the start pose and the sides, ``(m,)``.
@@ -79,8 +173,9 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     state = skeleton.forward(bind)
     bind_slope = ((state.tails[jm.bones] - state.heads[jm.bones]) @ f.forward) \
         / skeleton.lengths[jm.bones]
-    default = -1.0 if toward_viewer else 1.0
-    signs = np.where(np.abs(bind_slope) > 0.3, np.sign(bind_slope), default)
+    front = bind_front(embedding.solving, embedding.solving.rest_joints, f)
+    default = facing * front if front != 0.0 else (-1.0 if toward_viewer else 1.0)
+    signs = np.where(np.abs(bind_slope) > 0.3, facing * np.sign(bind_slope), default)
     pose = lifted_pose(skeleton, jm, f, embedding, bind, signs, fixed)
     if not order:
         return pose, signs

@@ -1,0 +1,220 @@
+"""Occlusions and T-junctions read from hand-made drawings, and the drawn facing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gesture_pose.core.gesture.depth import (
+    DepthOptions,
+    occlusions,
+    ordering,
+    solve_pose3d,
+    start,
+)
+from gesture_pose.core.gesture.depth.energies import view_frame
+from gesture_pose.core.gesture.depth.evaluation import joints_of
+from gesture_pose.core.gesture.depth.synthetic import project_embedding, solving_skeleton
+from gesture_pose.core.gesture.types import Embedding2D
+from gesture_pose.core.rotations import exp_map
+from gesture_pose.core.skeleton import Pose, Skeleton
+from tests.core.fixtures import frame_along, front_camera, tree_skeleton
+
+#: Torso radius and arm radius, world units.
+R_TORSO, R_ARM = 0.15, 0.06
+
+
+def _crossing_skeleton() -> Skeleton:
+    """A vertical torso and an arm (upper arm down the right side, forearm straight across
+    the torso at height 0.5): the forearm is two parent-child steps from the torso."""
+    heads = np.array([[0.0, 0.0, 0.0], [0.35, 0.0, 0.9], [0.35, 0.0, 0.5]])
+    tails = np.array([[0.0, 0.0, 1.0], [0.35, 0.0, 0.5], [-0.35, 0.0, 0.5]])
+    return Skeleton(
+        names=("torso", "upper_arm.L", "forearm.L"),
+        parents=np.array([-1, 0, 1]),
+        rest_heads=heads,
+        rest_tails=tails,
+        rest_frames=np.stack([frame_along(t - h) for h, t in zip(heads, tails, strict=True)]),
+        inherit_rotation=np.ones(3, bool),
+        connected=np.array([False, False, True]),
+        deform=np.ones(3, bool),
+    )
+
+
+def _line(cam, a, b, step: float = 4.0) -> np.ndarray:
+    """The image of the world segment ``ab`` (y = 0), sampled every ``step`` pixels."""
+    pa, pb = cam.project(np.array([a, b], float))
+    n = max(int(np.ceil(np.linalg.norm(pb - pa) / step)), 1)
+    return pa + np.linspace(0.0, 1.0, n + 1)[:, None] * (pb - pa)
+
+
+def _crossing_drawing(arm_in_front: bool):
+    """Outlines of the torso and the forearm crossing it, one of them interrupted.
+
+    Returns:
+        ``(skeleton, camera, embedding)``; the embedding has no correspondences, so the
+        bones of the contours come from the drawn tubes.
+    """
+    sk = _crossing_skeleton()
+    cam = front_camera(ortho=True)
+    solving = solving_skeleton(sk)
+    radius = np.full(solving.n_joints, R_ARM)
+    radius[[solving.head_joint[0], solving.tail_joint[0]]] = R_TORSO
+    base = project_embedding(sk, solving, Pose.identity(3), cam, radius)
+    top, low = 0.5 + R_ARM, 0.5 - R_ARM
+    if arm_in_front:  # the torso's sides stop at the forearm's outline
+        torso = [_line(cam, (x, 0, 1.0), (x, 0, top)) for x in (-R_TORSO, R_TORSO)]
+        torso += [_line(cam, (x, 0, low), (x, 0, 0.0)) for x in (-R_TORSO, R_TORSO)]
+        arm = [_line(cam, (-0.35, 0, z), (0.3, 0, z)) for z in (top, low)]
+    else:  # the forearm's outline stops at the torso's sides
+        torso = [_line(cam, (x, 0, 1.0), (x, 0, 0.0)) for x in (-R_TORSO, R_TORSO)]
+        arm = [_line(cam, (-0.35, 0, z), (-R_TORSO, 0, z)) for z in (top, low)]
+        arm += [_line(cam, (R_TORSO, 0, z), (0.3, 0, z)) for z in (top, low)]
+    contours = tuple(torso + arm)
+    emb = Embedding2D(base.solving, base.joints2d, base.joint_visible, base.joint_radius,
+                      ((),) * 3, ((),) * 3, (), contours, contours, 1.0, 0.0, epsilon=8.0)
+    return sk, cam, emb
+
+
+def test_arm_crossing_in_front_of_the_torso_puts_the_torso_behind():
+    sk, cam, emb = _crossing_drawing(arm_in_front=True)
+    found = occlusions.detect_junctions(emb)
+    # The four torso side pieces end on the forearm's outline; the forearm's ends are free.
+    assert len(found) == 4
+    assert {(j.stem_bone, j.top_bone) for j in found} == {(0, 2)}
+    assert {j.stem_contour for j in found} == {0, 1, 2, 3}
+    for j in found:
+        assert abs(cam.unproject_at_depth(j.point[None], 6.0)[0, 2] - 0.5) == \
+            pytest.approx(R_ARM, abs=0.01)
+    cons = ordering.ordering_constraints(emb, scale=view_frame(cam, np.zeros(3)).scale)
+    assert len(cons) == 1 and cons[0].kind == "occlusion"
+    s = emb.solving
+    assert set(cons[0].back.tolist()) == {s.head_joint[0], s.tail_joint[0]}
+    assert set(cons[0].front.tolist()) == {s.head_joint[2], s.tail_joint[2]}
+    # Depths: the arm 0.3 in front of the torso satisfies it; the arm behind breaks it.
+    depth = np.zeros(s.n_joints)
+    depth[[s.head_joint[2], s.tail_joint[2]]] = -0.3
+    assert cons[0].gap(depth) >= cons[0].margin
+    assert cons[0].gap(-depth) < 0.0
+
+
+def test_interrupted_arm_outline_puts_the_arm_behind():
+    _, _, emb = _crossing_drawing(arm_in_front=False)
+    found = occlusions.detect_junctions(emb)
+    assert {(j.stem_bone, j.top_bone) for j in found} == {(2, 0)}
+    cons = ordering.ordering_constraints(emb, scale=100.0)
+    s = emb.solving
+    assert len(cons) == 1
+    assert set(cons[0].back.tolist()) == {s.head_joint[2], s.tail_joint[2]}
+
+
+def test_solve_keeps_the_drawn_occlusion():
+    sk, cam, emb = _crossing_drawing(arm_in_front=True)
+    res = solve_pose3d(sk, emb, cam)
+    assert len(res.ordering) == 1 and np.all(res.ordering_satisfied)
+    d = cam.depth(res.joints3d)
+    s = emb.solving
+    arm = d[[s.head_joint[2], s.tail_joint[2]]].mean()
+    torso = d[[s.head_joint[0], s.tail_joint[0]]].mean()
+    assert arm < torso  # nearer the camera
+    # The same drawing with the forearm's outline interrupted instead: the other order.
+    _, _, behind = _crossing_drawing(arm_in_front=False)
+    res2 = solve_pose3d(sk, behind, cam)
+    d2 = cam.depth(res2.joints3d)
+    assert np.all(res2.ordering_satisfied)
+    assert d2[[s.head_joint[2], s.tail_joint[2]]].mean() > \
+        d2[[s.head_joint[0], s.tail_joint[0]]].mean()
+
+
+def test_bridged_and_end_to_end_strokes_are_no_junctions():
+    # An outline cut in two by a gap: the pieces continue each other (end to end, or
+    # joined by a Gestalt bridge), no T.
+    a = np.stack([np.linspace(0.0, 100.0, 26), np.zeros(26)], 1)
+    b = np.stack([np.linspace(102.0, 200.0, 25), np.zeros(25)], 1)
+    assert occlusions.find_junctions((a, b), epsilon=8.0) == []
+    # A stroke ending across the middle of another is a T ...
+    stem = np.stack([np.full(11, 150.0), np.linspace(-40.0, -2.0, 11)], 1)
+    found = occlusions.find_junctions((a, b, stem), epsilon=8.0)
+    assert [(j.stem_contour, j.stem_end, j.top_contour) for j in found] == [(2, 1, 1)]
+    np.testing.assert_allclose(found[0].point, [150.0, 0.0])
+    # ... unless a bridge says the stroke goes on elsewhere, or it runs along the top.
+    assert occlusions.find_junctions((a, b, stem), 8.0, np.array([[2, 1, 0, 0]])) == []
+    along = np.stack([np.linspace(110.0, 148.0, 11), np.full(11, -2.0)], 1)
+    assert occlusions.find_junctions((a, b, along), epsilon=8.0) == []
+
+
+def test_sample_bones_prefer_the_fits_correspondences():
+    _, _, emb = _crossing_drawing(arm_in_front=True)
+    labels = occlusions.sample_bones(emb)
+    # Each torso piece is the torso's but for its end on the forearm's outline.
+    assert [int(np.bincount(lab[lab >= 0]).argmax()) for lab in labels] == [0] * 4 + [2] * 2
+    assert labels[0][0] == 0 and labels[0][-1] == 2
+    assert set(np.unique(labels[4])) == {2}
+    # A correspondence overrides the geometry: claim the first torso piece for the arm.
+    piece = emb.contours[0]
+    segs = ((), (), (piece,))
+    relabeled = Embedding2D(emb.solving, emb.joints2d, emb.joint_visible, emb.joint_radius,
+                            segs, ((), (), (1,)), (), emb.contours, emb.contour_normals, 1.0,
+                            0.0, epsilon=8.0)
+    assert set(np.unique(occlusions.sample_bones(relabeled)[0])) == {2}
+
+
+def test_bone_steps_and_tube_overlap():
+    sk = tree_skeleton()
+    s = solving_skeleton(sk)
+    steps = occlusions.bone_steps(s.parent)
+    assert steps[3, 5] == 4 and steps[2, 4] == 2 and steps[3, 2] == 1 and steps[1, 1] == 0
+    emb = project_embedding(sk, s, Pose.identity(6), front_camera(ortho=True), 0.05)
+    # The two arms point apart; the forearm touches its own upper arm.
+    assert occlusions.tubes_overlap(emb, 3, 5) > 1.0
+    assert occlusions.tubes_overlap(emb, 2, 3) == pytest.approx(0.0, abs=1e-9)
+
+
+def _turned(pose_rot: np.ndarray) -> Pose:
+    rot = np.tile(np.eye(3), (6, 1, 1))
+    rot[0] = pose_rot
+    return Pose(rot, np.zeros((6, 3)))
+
+
+def test_drawn_facing_reads_a_character_turned_around():
+    sk = tree_skeleton()  # arm.L on +x: it faces -y, the front camera
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=True)
+    frame = view_frame(cam, s.rest_joints.mean(axis=0))
+    assert start.bind_front(s, s.rest_joints, frame) == -1.0
+    ahead = project_embedding(sk, s, Pose.identity(6), cam)
+    assert start.drawn_facing(s, ahead.joints2d, s.rest_joints, frame) == 1.0
+    back = project_embedding(sk, s, _turned(exp_map(np.array([0.0, np.pi, 0.0]))), cam)
+    # Turned about the root's own axis (world z): left and right swap in the image.
+    assert start.drawn_facing(s, back.joints2d, s.rest_joints, frame) == -1.0
+    # A side view shows no front.
+    side = front_camera(ortho=True)
+    side_frame = view_frame(side, s.rest_joints.mean(axis=0))
+    side_frame = type(side_frame)(side_frame.forward, side_frame.up, -side_frame.right,
+                                  side_frame.scale)
+    assert start.bind_front(s, s.rest_joints, side_frame) == 0.0
+
+
+def test_forearm_pointing_ahead_of_a_turned_character_goes_away_from_the_viewer():
+    sk = tree_skeleton()
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=True)
+    # Turn the character half round (its front now faces away from the camera) and swing
+    # the left forearm 60 degrees towards its front.
+    turn = exp_map(np.array([0.0, np.pi, 0.0]))
+    rot = np.tile(np.eye(3), (6, 1, 1))
+    rot[0] = turn
+    fore = sk.rest_frames[3]
+    axis_world = np.cross(sk.rest_tails[3] - sk.rest_heads[3], [0.0, -1.0, 0.0])
+    rot[3] = exp_map(fore.T @ (axis_world / np.linalg.norm(axis_world)) * np.radians(60.0))
+    truth = Pose(rot, np.zeros((6, 3)))
+    tj = joints_of(s, sk, truth)
+    k = s.tail_joint[3]
+    assert cam.depth(tj[k:k + 1])[0] - cam.depth(tj[s.head_joint[3]:][:1])[0] > 0.3
+    emb = project_embedding(sk, s, truth, cam, 0.05)
+    res = solve_pose3d(sk, emb, cam)
+    got = cam.depth(res.joints3d)
+    assert got[k] - got[s.head_joint[3]] > 0.3  # away, as drawn on a turned character
+    plain = solve_pose3d(sk, emb, cam, options=DepthOptions(read_facing=False))
+    flat = cam.depth(plain.joints3d)
+    assert flat[k] - flat[s.head_joint[3]] < -0.3  # the viewer-facing reading
