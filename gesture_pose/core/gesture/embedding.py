@@ -303,7 +303,10 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
             break
         if n_bad == 0 or rounds == params.max_terminal_rounds:
             break
-        blocked |= block_overlaps(base, assign)
+        grown = blocked | block_overlaps(base, assign)
+        if np.array_equal(grown, blocked):
+            break  # the same problem again would give the same answer
+        blocked = grown
         problem = replace(base, blocked=blocked.copy())
         cands, labels, energy = _two_pass(problem, contour, mid_r, params, cache)
         conf = configuration(cands, labels)
