@@ -79,6 +79,11 @@ def test_foreshortening_weights_follow_eq6():
     assert w[0] == 1.0 and w[2] == 1.0  # at least as long as the average
     assert w[3] == pytest.approx(np.exp(-(1 - 0.9 / mean) ** 2 / 0.08))
     assert 0.5 / mean < 0.6 and w[4] == 0.0  # deliberately foreshortened: free
+    # One link drawn at 16 times its length (a 2D fit error) among twenty: the trimmed
+    # average ignores it and the unforeshortened links keep their weight.
+    many = np.r_[np.full(19, 0.95), 16.0]
+    assert np.all(energies.foreshortening_weights(many)[:19] == 1.0)
+    assert np.all(energies.foreshortening_weights(many, trim=0.0)[:19] == 0.0)
 
 
 def test_conformity_is_zero_for_the_drawn_pose_and_matches_its_definition():

@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import trim_mean
 
 from ...camera import Camera
 from ...exceptions import InputError
@@ -146,23 +147,28 @@ def foreshortening_ratios(joints2d: np.ndarray, a: np.ndarray, b: np.ndarray,
 
 
 def foreshortening_weights(ratios: np.ndarray, sigma_f: float = 0.2,
-                           free_ratio: float = 0.6) -> np.ndarray:
+                           free_ratio: float = 0.6, trim: float = 0.1) -> np.ndarray:
     """Weights of E_v (Eq. 6) from each link's foreshortening relative to the average.
 
     With ``rho = f / mean(f)``: links drawn at least as long as the average keep weight 1
     (their depth should not change), shorter ones get ``exp(-(1 - rho)^2 / (2 sigma_f^2))``
     and links with ``rho < free_ratio`` are deliberately foreshortened and free (weight 0).
 
+    The average is trimmed (ours): the fraction ``trim`` of the links at each end of the
+    ratios is left out, so that one link the 2D fit got badly wrong (a short rigid offset
+    drawn at many times its length) does not make every other link look foreshortened.
+
     Args:
         ratios: Foreshortening ``f`` per link, shape ``(L,)``.
         sigma_f: Width of the fall-off (paper: 0.2).
         free_ratio: Relative foreshortening below which a link is free (paper: 0.6).
+        trim: Fraction of links left out at each end of the average (0: the plain mean).
 
     Returns:
         Weights in ``[0, 1]``, shape ``(L,)``.
     """
     ratios = np.asarray(ratios, dtype=float)
-    mean = float(np.mean(ratios)) if ratios.size else 1.0
+    mean = float(trim_mean(ratios, trim)) if ratios.size else 1.0
     if mean <= 1e-9:
         raise InputError("Every bone of the drawing has zero length: redraw the figure.")
     rho = ratios / mean
