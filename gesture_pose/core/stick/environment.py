@@ -24,6 +24,8 @@ from ..rotations import normalize
 from .genetic import row_hash
 
 UP_ANGLE = np.radians(30.0)
+#: Voxel edge (world units) of the distance grid's test for points near no surface.
+VOXEL = 0.1
 SEAT_RANGE = (0.5, 1.5)
 
 
@@ -126,6 +128,12 @@ class Environment:
         return float(np.asarray(point) @ up - base)
 
 
+def _voxel_keys(cells: np.ndarray) -> np.ndarray:
+    """One integer per voxel index triple ``(m, 3) -> (m,)`` (indices within +-2^20)."""
+    c = cells.astype(np.int64) + (1 << 20)
+    return (c[:, 0] << 42) | (c[:, 1] << 21) | c[:, 2]
+
+
 @dataclass(frozen=True)
 class DistanceGrid:
     """Distance to the environment's surfaces: nearest of dense surface samples.
@@ -140,11 +148,24 @@ class DistanceGrid:
     spacing: float
     max_distance: float = 0.3
     _tree: cKDTree | None = field(init=False, repr=False, compare=False)
+    _near: dict = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         """Build the k-d tree."""
         tree = cKDTree(self.samples) if len(self.samples) else None
         object.__setattr__(self, "_tree", tree)
+        object.__setattr__(self, "_near", {})
+
+    def _near_voxels(self, reach: int) -> np.ndarray:
+        """Sorted keys of the voxels (edge ``VOXEL``) within ``reach`` voxels of a sample."""
+        if reach not in self._near:
+            cells = np.floor(self.samples / VOXEL).astype(np.int64)
+            _, first = np.unique(_voxel_keys(cells), return_index=True)
+            r = np.arange(-reach, reach + 1)
+            shifts = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
+            near = (cells[first][:, None] + shifts[None]).reshape(-1, 3)
+            self._near[reach] = np.unique(_voxel_keys(near))
+        return self._near[reach]
 
     def sample(self, points: np.ndarray, limit: float | None = None
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -152,8 +173,9 @@ class DistanceGrid:
 
         Args:
             points: World points, shape ``(..., 3)``.
-            limit: Only distances below this are looked up (the k-d search prunes more;
-                penetration tests only need distances under the largest radius).
+            limit: Only distances below this are looked up (points whose voxel is farther
+                from every sample's skip the k-d search; penetration tests only need
+                distances under the largest radius).
 
         Returns:
             ``(distance (...), gradient (..., 3))``; ``max_distance`` and zero gradient
@@ -161,30 +183,75 @@ class DistanceGrid:
         """
         p = np.asarray(points, float)
         flat = p.reshape(-1, 3)
-        if self._tree is None:
-            return (np.full(p.shape[:-1], self.max_distance), np.zeros(p.shape))
-        bound = self.max_distance if limit is None else min(limit, self.max_distance)
-        d, idx = self._tree.query(flat, distance_upper_bound=bound, workers=1)
-        near = np.isfinite(d)
+        d = np.full(len(flat), self.max_distance)
         grad = np.zeros_like(flat)
-        diff = flat[near] - self.samples[idx[near]]
-        grad[near] = diff / np.maximum(d[near], 1e-12)[:, None]
-        d = np.where(near, d, self.max_distance)
+        if self._tree is None:
+            return d.reshape(p.shape[:-1]), grad.reshape(p.shape)
+        bound = self.max_distance if limit is None else min(limit, self.max_distance)
+        near_voxels = self._near_voxels(int(np.ceil(bound / VOXEL)))
+        keys = _voxel_keys(np.floor(flat / VOXEL))
+        pos = np.minimum(np.searchsorted(near_voxels, keys), len(near_voxels) - 1)
+        ask = np.flatnonzero(near_voxels[pos] == keys)
+        if ask.size:
+            dq, idx = self._tree.query(flat[ask], distance_upper_bound=bound, workers=1)
+            hit = np.isfinite(dq)
+            rows = ask[hit]
+            d[rows] = dq[hit]
+            diff = flat[rows] - self.samples[idx[hit]]
+            grad[rows] = diff / np.maximum(dq[hit], 1e-12)[:, None]
         return d.reshape(p.shape[:-1]), grad.reshape(p.shape)
 
 
+def _clip_subdivide(tris: np.ndarray, lo: np.ndarray, hi: np.ndarray, max_edge: float
+                    ) -> np.ndarray:
+    """Triangles ``(t, 3, 3)`` split in four until no edge exceeds ``max_edge``.
+
+    Pieces whose bounding box misses the box ``[lo, hi]`` are dropped on the way.
+    """
+    out = []
+    while len(tris):
+        tris = tris[np.all(tris.max(1) >= lo, 1) & np.all(tris.min(1) <= hi, 1)]
+        edges = np.linalg.norm(tris - np.roll(tris, 1, axis=1), axis=-1).max(1)
+        small = edges <= max_edge
+        out.append(tris[small])
+        a, b, c = (tris[~small][:, i] for i in range(3))
+        ab, bc, ca = 0.5 * (a + b), 0.5 * (b + c), 0.5 * (c + a)
+        tris = np.concatenate([np.stack(t, 1) for t in ((a, ab, ca), (ab, b, bc),
+                                                         (ca, bc, c), (ab, bc, ca))])
+    return np.concatenate(out) if out else np.zeros((0, 3, 3))
+
+
 def surface_samples(env: Environment, spacing: float, lo: np.ndarray,
-                    hi: np.ndarray) -> np.ndarray:
-    """Points covering the triangles inside a box, at most ``spacing`` apart, ``(m, 3)``."""
-    c = env.corners
-    keep = np.all(c.max(1) >= lo, 1) & np.all(c.min(1) <= hi, 1)
-    out = [c[keep].reshape(-1, 3)]
-    for tri in c[keep]:
-        e1, e2 = tri[1] - tri[0], tri[2] - tri[0]
-        k = int(np.ceil(max(np.linalg.norm(e1), np.linalg.norm(e2)) / spacing)) + 1
+                    hi: np.ndarray, max_edge: float = 0.2) -> np.ndarray:
+    """Points covering the triangles inside a box, at most ``spacing`` apart, ``(m, 3)``.
+
+    Large triangles (a floor) are first split into pieces of at most ``max_edge`` and
+    the pieces outside the box dropped; each piece is then covered by the lattice
+    ``t0 + (i e1 + j e2) / k``, ``i + j <= k``, ``t0`` the corner facing the longest edge
+    and ``k`` the smallest that keeps the steps along ``e1`` and ``e2`` within
+    ``spacing / sqrt(2)``.
+    """
+    tris = _clip_subdivide(env.corners, np.asarray(lo, float), np.asarray(hi, float),
+                           max_edge)
+    if len(tris) == 0:
+        return np.zeros((0, 3))
+    # Start each lattice at the corner facing the longest edge: its two shorter edges
+    # then set the lattice step.
+    opposite = np.linalg.norm(np.roll(tris, 1, axis=1) - np.roll(tris, 2, axis=1),
+                              axis=-1).argmax(1)
+    tris = tris[np.arange(len(tris))[:, None], (opposite[:, None] + np.arange(3)) % 3]
+    e1, e2 = tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
+    longest = np.maximum(np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1))
+    # Steps of spacing / sqrt(2): no surface point is more than spacing / 2 from a sample.
+    ks = np.maximum(np.ceil(np.sqrt(2.0) * longest / spacing).astype(int), 1)
+    out = []
+    for k in np.unique(ks):
+        sel = ks == k
         a, b = np.meshgrid(np.arange(k + 1), np.arange(k + 1), indexing="ij")
         m = a + b <= k
-        pts = tri[0] + (a[m][:, None] * e1 + b[m][:, None] * e2) / k
+        w = np.stack([a[m], b[m]], 1) / k  # (L, 2)
+        pts = (tris[sel, 0, None] + w[None, :, :1] * e1[sel, None] +
+               w[None, :, 1:] * e2[sel, None]).reshape(-1, 3)
         out.append(pts[np.all((pts >= lo - spacing) & (pts <= hi + spacing), 1)])
     return np.concatenate(out)
 
@@ -301,6 +368,43 @@ class Seat:
     region: np.ndarray
 
 
+def _surface_below(env: Environment, points: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The highest up-facing triangle below each point (a vertical ray cast down).
+
+    Args:
+        env: The environment.
+        points: World points, shape ``(m, 3)``.
+
+    Returns:
+        ``(point index (k,), triangle (k,), height above it (k,))`` for the points that
+        have an up-facing triangle (normal within 30 degrees of up or down) below them.
+    """
+    up = env.up
+    flat = np.flatnonzero(np.abs(env.normals @ up) >= np.cos(UP_ANGLE))
+    if flat.size == 0:
+        return np.zeros(0, int), np.zeros(0, int), np.zeros(0)
+    c = env.corners[flat]
+    basis = np.linalg.svd(np.eye(3) - np.outer(up, up))[0][:, :2]
+    a, b, cc = c[:, 0] @ basis, c[:, 1] @ basis, c[:, 2] @ basis  # (f, 2)
+    v0, v1 = b - a, cc - a
+    den = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
+    ok = np.abs(den) > 1e-18
+    den = np.where(ok, den, 1.0)
+    rel = (points @ basis)[:, None] - a[None]  # (m, f, 2)
+    s = (rel[..., 0] * v1[:, 1] - rel[..., 1] * v1[:, 0]) / den
+    t = (v0[:, 0] * rel[..., 1] - v0[:, 1] * rel[..., 0]) / den
+    inside = ok & (s >= 0) & (t >= 0) & (s + t <= 1)
+    h = c @ up  # corner heights (f, 3)
+    surf = (1 - s - t) * h[:, 0] + s * h[:, 1] + t * h[:, 2]
+    above = (points @ up)[:, None] - surf
+    cand = inside & (above > 1e-9)
+    gap = np.where(cand, above, np.inf)
+    j = np.argmin(gap, axis=1)
+    k = np.flatnonzero(np.isfinite(gap[np.arange(len(points)), j]))
+    return k, flat[j[k]], gap[k, j[k]]
+
+
 def surfaces_under_ray(env: Environment, origin: np.ndarray, direction: np.ndarray,
                        gap: tuple[float, float], near: float, far: float,
                        step: float = 0.02) -> list[Hit]:
@@ -331,24 +435,12 @@ def surfaces_under_ray(env: Environment, origin: np.ndarray, direction: np.ndarr
     ts = np.arange(near, min(far, 50.0), step)
     if ts.size and len(env.triangles):
         pts = origin + ts[:, None] * direction
-        c = env.corners
-        n = env.normals
-        flat = np.flatnonzero(np.abs(n @ up) >= np.cos(UP_ANGLE))
-        lo2 = c[flat].min(1)
-        hi2 = c[flat].max(1)
-        # Candidate triangles under each ray sample (bounding boxes), then exact test.
-        for k, p in enumerate(pts):
-            under = flat[np.all((p[:2] >= lo2[:, :2]) & (p[:2] <= hi2[:, :2]), 1)]
-            if under.size == 0:
-                continue
-            sub = Environment(env.vertices, env.triangles[under], under, up=up)
-            hits = sub.raycast(p, -up)
-            if hits:
-                h = hits[0]
-                height = p @ up - h.point @ up
-                if gap[0] <= height <= gap[1]:
-                    out.append((ts[k], Hit(ts[k], h.point, up.copy(), int(under[h.triangle]),
-                                           int(env.object_ids[under[h.triangle]]))))
+        k, tri, height = _surface_below(env, pts)
+        ok = (gap[0] <= height) & (height <= gap[1])
+        for i, t, h in zip(k[ok], tri[ok], height[ok], strict=True):
+            below = pts[i] - up * h
+            out.append((float(ts[i]), Hit(float(ts[i]), below, up.copy(), int(t),
+                                   int(env.object_ids[t]))))
     out.sort(key=lambda item: item[0])
     return [h for _, h in out]
 
