@@ -72,27 +72,89 @@ def lift_population(model: PoseModel, pop: np.ndarray, bounds: np.ndarray,
     if not groups:
         return pop
     sel = np.flatnonzero(rng.random(len(pop)) < fraction)
-    X = pop[sel]
     n = len(sel)
     bits = (np.arange(n)[:, None] >> np.arange(len(groups))[None]) & 1
     bits = bits[rng.permutation(n)].astype(bool)
+    pop[sel] = _lift(model, pop[sel], bounds, stick, camera, groups, bits)
+    return pop
+
+
+def depth_flips(model: PoseModel, x: np.ndarray, bounds: np.ndarray, stick: StickFigure,
+                camera: Camera, max_bones: int = 10) -> np.ndarray:
+    """Every near/far choice of the limb bones of one pose: its depth interpretations.
+
+    The root, spine and head of ``x`` are kept; each liftable limb bone (upper arm,
+    forearm, thigh, shin, and hand or foot when drawn) is aimed, root-most first, at the
+    near or the far point where the eye ray through its drawn end meets the sphere of its
+    length around its posed start.
+
+    Args:
+        model: Genes -> bones.
+        x: The pose, shape ``(G,)``.
+        bounds: Gene bounds, shape ``(G, 2)``.
+        stick: The drawing.
+        camera: The view it was drawn in.
+        max_bones: Bones whose choice varies (the first ones in the figure's group order);
+            the others keep the side of the sphere they have in ``x``.
+
+    Returns:
+        ``2^k`` gene vectors, shape ``(2^k, G)``, ``k = min(max_bones, liftable bones)``;
+        row ``i`` takes the far point for bone ``j`` when bit ``j`` of ``i`` is set.
+    """
+    groups = _lifted_groups(model, stick)
+    if not groups:
+        return np.asarray(x, float)[None].copy()
+    k = min(max_bones, len(groups))
+    heads, tails, _ = model.forward(np.asarray(x, float)[None])
+    o, d = camera.rays(stick.points[[j for _, _, j, _ in groups]])
+    # The current choice of each bone: is its end beyond the ray's closest approach?
+    bones = [int(model.figure.groups[gi].bones[0]) for gi, *_ in groups]
+    far_now = np.einsum("kd,kd->k", tails[0, bones] - heads[0, bones], d) > 0
+    n = 2**k
+    bits = np.broadcast_to(far_now, (n, len(groups))).copy()
+    bits[:, :k] = ((np.arange(n)[:, None] >> np.arange(k)[None]) & 1).astype(bool)
+    X = np.repeat(np.asarray(x, float)[None], n, 0)
+    return _lift(model, X, bounds, stick, camera, groups, bits)
+
+
+def _frame(e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
+    """Rotations with columns ``e1``, ``e2`` (made orthogonal) and ``e1 x e2``, ``(n, 3, 3)``."""
+    e1 = e1 / np.maximum(np.linalg.norm(e1, axis=-1, keepdims=True), 1e-12)
+    e2 = e2 - e1 * np.sum(e1 * e2, -1, keepdims=True)
+    e2 = e2 / np.maximum(np.linalg.norm(e2, axis=-1, keepdims=True), 1e-12)
+    return np.stack([e1, e2, np.cross(e1, e2)], -1)
+
+
+def _lift(model: PoseModel, X: np.ndarray, bounds: np.ndarray, stick: StickFigure,
+          camera: Camera, groups: list, bits: np.ndarray) -> np.ndarray:
+    """Aim each lifted group of ``X`` (``(n, G)``) at its near or far point (``bits``).
+
+    A ball joint whose child is a lifted hinge (shoulder, hip) also takes the twist that
+    puts the hinge's axis across the plane of its two lifted bones, flexing the right
+    way, so that the hinge can reach its own target.
+    """
+    X = X.copy()
     sk, fig = model.skeleton, model.figure
     y = np.array([0.0, 1.0, 0.0])
-    depth = {}
-    for k, (gi, _, _, _) in enumerate(groups):
-        b = int(fig.groups[gi].bones[0])
-        depth[k] = sum(int(fig.groups[g2].bones[0]) in sk.ancestors(b)[1:]
-                       for g2, *_ in groups)
+    depth, hinge_child = {}, {}
+    bone_of = [int(fig.groups[gi].bones[0]) for gi, *_ in groups]
+    for k, b in enumerate(bone_of):
+        depth[k] = sum(b2 in sk.ancestors(b)[1:] for b2 in bone_of)
+        kids = [c for c, b2 in enumerate(bone_of) if sk.parents[b2] == b and
+                fig.groups[groups[c][0]].bounds.shape[0] == 1]
+        if kids and fig.groups[groups[k][0]].bounds.shape[0] == 3:
+            hinge_child[k] = kids[0]
+    rays = camera.rays(stick.points[[j for _, _, j, _ in groups]])
     for tier in sorted(set(depth.values())):
         heads, _, frames = model.forward(X)
         Q, _ = model.local_rotations(X)
-        for k, (gi, start, joint, length) in enumerate(groups):
+        for k, (gi, start, _, length) in enumerate(groups):
             if depth[k] != tier:
                 continue
             grp = fig.groups[gi]
-            b = int(grp.bones[0])
+            b = bone_of[k]
             m = grp.bounds.shape[0]
-            o, d = camera.rays(stick.points[joint][None])
+            o, d = rays[0][k][None], rays[1][k][None]
             target = _ray_sphere(o, d, heads[:, b], length, bits[:, k])
             # F_b = C Q0 E with E = exp(B g): the new E must turn y towards the target
             # expressed in C Q0 = F_b E^T.
@@ -107,8 +169,37 @@ def lift_population(model: PoseModel, pop: np.ndarray, bounds: np.ndarray,
                 g = theta[:, None]
             else:
                 R = rotation_between(np.broadcast_to(y, want.shape), want)
+                if k in hinge_child:
+                    R = _twisted(model, groups, hinge_child[k], b, frames, base,
+                                 heads[:, b], target, rays, bits[:, hinge_child[k]], R)
                 g = log_map(R) @ B
             X[:, start:start + m] = np.clip(g, bounds[start:start + m, 0],
                                             bounds[start:start + m, 1])
-    pop[sel] = X
-    return pop
+    return X
+
+
+def _twisted(model: PoseModel, groups: list, c: int, b: int, frames: np.ndarray,
+             base: np.ndarray, head: np.ndarray, target: np.ndarray, rays: tuple,
+             far: np.ndarray, smallest: np.ndarray) -> np.ndarray:
+    """Rotations ``E`` (``(n, 3, 3)``) of ball bone ``b`` aiming it at ``target``.
+
+    The twist puts the axis of its lifted hinge child (lifted group ``c``, its end on the
+    near or ``far`` side) normal to the plane of the two bones, so that flexing the hinge
+    (a positive turn about its axis) moves the child towards its own target. Where the
+    bones are aligned (no plane) the smallest rotation ``smallest`` is kept.
+    """
+    gi, _, _, length = groups[c]
+    cb = int(model.figure.groups[gi].bones[0])
+    axis_c = model.figure.groups[gi].bases[0][:, 0]
+    # The child's hinge axis in b's posed frame (unchanged when b turns), then in world.
+    F_b = frames[:, b]
+    ell = np.einsum("pji,pjk,k->pi", F_b, frames[:, cb], axis_c)
+    end = _ray_sphere(rays[0][c][None], rays[1][c][None], target, length, far)
+    n = np.cross(target - head, end - target)
+    ok = np.linalg.norm(n, axis=1) > 1e-6 * np.linalg.norm(target - head, axis=1) * np.maximum(
+        np.linalg.norm(end - target, axis=1), 1e-12)
+    want = np.einsum("pji,pj->pi", base, target - head)
+    n_base = np.einsum("pji,pj->pi", base, n)
+    y = np.broadcast_to([0.0, 1.0, 0.0], want.shape)
+    R = _frame(want, n_base) @ np.swapaxes(_frame(y, ell), 1, 2)
+    return np.where(ok[:, None, None], R, smallest)
