@@ -112,7 +112,9 @@ def place_joints(objective: StickObjective, x0: np.ndarray, bounds: np.ndarray,
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Move ``genes`` so that stick ``joints`` land exactly on ``targets``.
 
-    This is the attachment enforcement: a bounded least-squares solve from ``x0``.
+    This is the attachment enforcement: a bounded least-squares solve from ``x0``, by
+    projected Gauss-Newton (a few Jacobians when the targets are within reach), finished
+    by scipy's trust-region methods when that stalls against the bounds.
 
     Args:
         objective: Provides the pose model.
@@ -139,8 +141,10 @@ def place_joints(objective: StickObjective, x0: np.ndarray, bounds: np.ndarray,
             heads, tails, Jh, Jt = model.jacobian(x)
             p = np.where(at_tail[:, None], tails[bones], heads[bones])
             J = np.where(at_tail[:, None, None], Jt[bones], Jh[bones])
+            everything = np.where(fig.joint_at_tail[:, None, None], Jt[fig.joint_bones],
+                                  Jh[fig.joint_bones])
             cache.clear()
-            cache[key] = (p, J)
+            cache[key] = (p, J, everything)
         return cache[key]
 
     def full(z):
@@ -148,8 +152,11 @@ def place_joints(objective: StickObjective, x0: np.ndarray, bounds: np.ndarray,
         x[genes] = z
         return x
 
+    def fun_plain(z):
+        return (points(full(z))[0] - targets).ravel()
+
     def fun(z):
-        r = (points(full(z))[0] - targets).ravel()
+        r = fun_plain(z)
         if np.max(np.abs(r)) < tol:  # on target: stop (least_squares has no such test)
             raise _OnTargetError(z.copy())
         return r
@@ -158,20 +165,76 @@ def place_joints(objective: StickObjective, x0: np.ndarray, bounds: np.ndarray,
         return points(full(z))[1][..., genes].reshape(-1, genes.size)
 
     lo, hi = bounds[genes, 0], bounds[genes, 1]
-    z0 = np.clip(x0[genes], lo, hi)
-    # The trust-region reflective method moves the genes least; where it crawls (bounds
-    # nearly active) the dogleg method finishes from where it stopped.
-    z = z0
-    for method in ("trf", "dogbox"):
-        try:
-            res = least_squares(fun, z, jac=jac, bounds=(lo, hi), method=method, xtol=1e-12,
-                                ftol=1e-14, gtol=1e-12, max_nfev=max_evaluations)
-            z = res.x
-        except _OnTargetError as hit:
-            z = hit.z
-            break
+    def metric(z):
+        J = points(full(z))[2][..., genes].reshape(-1, genes.size)
+        return J.T @ J
+
+    z = _projected_gauss_newton(lambda z: (fun_plain(z), jac(z), metric(z)),
+                                np.clip(x0[genes], lo, hi), lo, hi, tol, max_evaluations)
+    if np.max(np.abs(fun_plain(z))) >= tol:
+        # The trust-region reflective method moves the genes least; where it crawls
+        # (bounds nearly active) the dogleg method finishes from where it stopped.
+        for method in ("trf", "dogbox"):
+            try:
+                res = least_squares(fun, z, jac=jac, bounds=(lo, hi), method=method,
+                                    xtol=1e-12, ftol=1e-14, gtol=1e-12,
+                                    max_nfev=max_evaluations)
+                z = res.x
+            except _OnTargetError as hit:
+                z = hit.z
+                break
     x = full(z)
     return x, np.linalg.norm(points(x)[0] - targets, axis=1)
+
+
+def _projected_gauss_newton(fun_jac, z: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                            tol: float, max_evaluations: int) -> np.ndarray:
+    """Damped Gauss-Newton on ``|r(z)|^2`` inside ``[lo, hi]``, moving the body least.
+
+    Each step solves ``(J^T J + lambda (M + mu I)) dz = -J^T r`` with ``M = K^T K``, ``K``
+    the Jacobian of every stick joint: with small ``lambda`` this is the step that meets
+    the linearized targets while moving the joints least. Genes at a bound that the step
+    would push out are held; ``lambda`` grows when a step does not lower the residual.
+
+    Args:
+        fun_jac: ``z -> (r (k,), dr/dz (k, m), M (m, m))``.
+        z: Start, shape ``(m,)`` (inside the bounds).
+        lo: Lower bounds, shape ``(m,)``.
+        hi: Upper bounds, shape ``(m,)``.
+        tol: Stop once every residual is below this.
+        max_evaluations: Limit on ``fun_jac`` calls.
+
+    Returns:
+        The last accepted ``z``.
+    """
+    r, J, M = fun_jac(z)
+    cost = float(r @ r)
+    lam = 1e-6
+    for _ in range(max_evaluations - 1):
+        if np.max(np.abs(r)) < tol:
+            break
+        g = J.T @ r
+        held = ((z <= lo) & (g > 0)) | ((z >= hi) & (g < 0))
+        free = np.flatnonzero(~held)
+        if free.size == 0:
+            break
+        Jf = J[:, free]
+        H = Jf.T @ Jf
+        Mf = M[np.ix_(free, free)]
+        Mf = Mf + 1e-3 * (np.trace(Mf) / free.size + 1e-12) * np.eye(free.size)
+        step = np.zeros_like(z)
+        step[free] = -np.linalg.solve(H + lam * np.trace(H) / np.trace(Mf) * Mf, g[free])
+        zn = np.clip(z + step, lo, hi)
+        rn, Jn, Mn = fun_jac(zn)
+        cn = float(rn @ rn)
+        if cn < cost:
+            z, r, J, M, cost = zn, rn, Jn, Mn, cn
+            lam = max(lam / 10.0, 1e-12)
+        else:
+            lam *= 10.0
+            if lam > 1e6:
+                break
+    return z
 
 
 class _OnTargetError(Exception):
