@@ -136,7 +136,7 @@ def test_reconstructs_a_standing_pose_with_feet_pinned():
     for s in res.suggestions:
         assert np.all(s.pin_residuals < 1e-6)
     assert len(res.suggestions) >= 2
-    assert [s.energy for s in res.suggestions] == sorted(s.energy for s in res.suggestions)
+    assert [s.score for s in res.suggestions] == sorted(s.score for s in res.suggestions)
     again = solve_stick(inp)
     assert np.array_equal(again.suggestions[0].genes, res.suggestions[0].genes)
 

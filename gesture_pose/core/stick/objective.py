@@ -14,6 +14,12 @@ weights 1.0, 0.5 and 5.0:
   (Eq. 9); a joint pinned to the environment stays on the contact plane (Eq. 10).
 - ``E_col`` (Eq. 11): squared capsule penetrations, body against body and against the
   environment's distance grid, in units of 5 % of the height.
+- ``E_com`` (joint comfort, our addition, weight 0.002): per gene group (a shoulder, an
+  elbow, the spine...) the mean of ``((g - g_0) / h)^2`` over its rotation genes, ``g_0``
+  the rest pose clipped into the range of motion and ``h`` the range's half-width. It is
+  too weak to move a pose off the drawing (a 30-degree turn costs what a 1-degree error
+  of one drawn edge does) but decides between depth interpretations that fit the drawing
+  equally well and fixes the rotations the drawing does not see (twists along bones).
 
 Every term returns its gradient with respect to the bones' heads and tails; chained with
 :meth:`.kinematics.PoseModel.jacobian` this gives the analytic gene gradient.
@@ -30,7 +36,7 @@ from ..camera import Camera
 from .capsules import Capsules, axis_samples, body_collision, segment_closest
 from .environment import DistanceGrid
 from .graph import StickFigure
-from .kinematics import PoseModel
+from .kinematics import N_ROOT_GENES, PoseModel
 
 
 @dataclass(frozen=True)
@@ -65,13 +71,18 @@ class LimbPin:
 
 @dataclass(frozen=True)
 class Weights:
-    """Term weights (the paper's: projection 1.0, balance 0.5, attachment 5.0)."""
+    """Term weights (the paper's: projection 1.0, balance 0.5, attachment 5.0).
+
+    ``collision`` weighs Eq. 11 in refinement, ``position`` is Eq. 5's ``w`` and
+    ``comfort`` weighs the joint comfort term (0 turns it off).
+    """
 
     projection: float = 1.0
     balance: float = 0.5
     attachment: float = 5.0
     collision: float = 5.0
     position: float = 0.1
+    comfort: float = 0.002
 
 
 def project_jacobian(camera: Camera, points: np.ndarray, jacobian: bool = True
@@ -178,9 +189,11 @@ class StickObjective:
     _px_scale: float = field(init=False, repr=False)
     _ground: np.ndarray = field(init=False, repr=False)
     _poly: np.ndarray = field(init=False, repr=False)
+    _comfort_ref: np.ndarray = field(init=False, repr=False)
+    _comfort_scale: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        """Cache drawn edge directions, the pixel scale and the support polygon."""
+        """Cache drawn edges, the pixel scale, the support polygon and comfort constants."""
         edges = self.stick.drawn_edges()
         vec = self.stick.points[edges[:, 1]] - self.stick.points[edges[:, 0]]
         lengths = np.linalg.norm(vec, axis=1)
@@ -192,6 +205,14 @@ class StickObjective:
         object.__setattr__(self, "_ground", ground)
         sup = np.asarray(self.support, float).reshape(-1, 3)
         object.__setattr__(self, "_poly", _hull(sup @ ground) if len(sup) else np.zeros((0, 2)))
+        groups = self.model.figure.groups
+        m = np.array([g.bounds.shape[0] for g in groups], int)
+        b = np.concatenate([g.bounds for g in groups]).reshape(-1, 2)
+        half = np.maximum(0.5 * (b[:, 1] - b[:, 0]), 1e-6)
+        object.__setattr__(self, "_comfort_ref", np.clip(0.0, b[:, 0], b[:, 1]))
+        # sqrt(w / m) / h: each group counts once, whatever its number of genes.
+        object.__setattr__(self, "_comfort_scale",
+                           np.sqrt(self.weights.comfort / np.repeat(m, m)) / half)
 
     # -- terms ---------------------------------------------------------------------------
 
@@ -250,14 +271,17 @@ class StickObjective:
                 g[:, b] -= 2 * pin.s * d / h2
         return energy, g
 
-    def _collision(self, heads, tails, grad):
+    def _collision(self, heads, tails, grad, body: bool = True, samples: int = 5):
         scale = (0.05 * self.height) ** 2
-        e_body, gh, gt = body_collision(self.capsules, heads, tails, grad)
+        if body:
+            e_body, gh, gt = body_collision(self.capsules, heads, tails, grad)
+        else:
+            e_body, gh, gt = np.zeros(heads.shape[0]), None, None
         energy = e_body
         if self.grid is not None and np.any(self.env_capsules):
             bones = self.capsules.bones[self.env_capsules]
             radii = self.capsules.radii[self.env_capsules]
-            u = axis_samples(5)
+            u = axis_samples(samples)
             pts = (heads[:, bones, None] * (1 - u)[:, None] + tails[:, bones, None] *
                    u[:, None])
             d, gd = self.grid.sample(pts, limit=1.001 * radii.max())
@@ -270,6 +294,15 @@ class StickObjective:
         if grad:
             return energy / scale, gh / scale, gt / scale
         return energy / scale, None, None
+
+    def comfort_residuals(self, genes: np.ndarray) -> np.ndarray:
+        """Weighted comfort residuals ``(P, G - 6)``: ``sqrt(w / m) (g - g_0) / h``.
+
+        Their squares sum to ``w_com E_com``; their Jacobian is the constant diagonal
+        ``sqrt(w / m) / h`` on the rotation genes.
+        """
+        x = np.atleast_2d(genes)[:, N_ROOT_GENES:]
+        return (x - self._comfort_ref) * self._comfort_scale
 
     # -- public ----------------------------------------------------------------------------
 
@@ -295,7 +328,13 @@ class StickObjective:
         e_a, gj_a = self._attachment(joints, grad)
         terms = {"projection": e_p, "balance": e_b, "attachment": e_a}
         total = w.projection * e_p + w.balance * e_b + w.attachment * e_a
-        if collision:
+        if collision == "environment":
+            # The genetic search's cheap check: environment only, three samples per bone.
+            e_c, _, _ = self._collision(heads, tails, False, body=False, samples=3)
+            terms["collision"] = e_c
+            total = total + w.collision * e_c
+            collision = False
+        elif collision:
             e_c, gh_c, gt_c = self._collision(heads, tails, grad)
             terms["collision"] = e_c
             total = total + w.collision * e_c
@@ -353,6 +392,8 @@ class StickObjective:
             i, k = pin.limb
             d = joints[:, pin.joint] - (1 - pin.s) * joints[:, i] - pin.s * joints[:, k]
             out.append(np.sqrt(w.attachment) * d / self.height)
+        if w.comfort > 0:
+            out.append(self.comfort_residuals(genes))
         if collision:
             c = np.sqrt(w.collision) / (0.05 * self.height)
             caps = self.capsules
@@ -421,6 +462,9 @@ class StickObjective:
             i, k = pin.limb
             rs.append(sa * (joints[pin.joint] - (1 - pin.s) * joints[i] - pin.s * joints[k]))
             js.append(sa * (Jj[pin.joint] - (1 - pin.s) * Jj[i] - pin.s * Jj[k]))
+        if w.comfort > 0:
+            rs.append(self.comfort_residuals(x)[0])
+            js.append(np.eye(G)[N_ROOT_GENES:] * self._comfort_scale[:, None])
         if collision:
             c = np.sqrt(w.collision) / (0.05 * self.height)
             caps = self.capsules
@@ -462,6 +506,10 @@ class StickObjective:
         """Energies of a population, ``(P, G) -> ((P,), {term: (P,)})``."""
         heads, tails, _ = self.model.forward(genes)
         total, terms, _, _ = self.energies(heads, tails, collision)
+        if self.weights.comfort > 0:
+            c = np.sum(self.comfort_residuals(genes) ** 2, 1)
+            terms["comfort"] = c / self.weights.comfort
+            total = total + c
         return total, terms
 
     def value_and_grad(self, x: np.ndarray, collision: bool = True
@@ -470,4 +518,9 @@ class StickObjective:
         heads, tails, Jh, Jt = self.model.jacobian(x)
         total, _, gh, gt = self.energies(heads[None], tails[None], collision, grad=True)
         g = np.einsum("nd,ndg->g", gh[0], Jh) + np.einsum("nd,ndg->g", gt[0], Jt)
-        return float(total[0]), g
+        total = float(total[0])
+        if self.weights.comfort > 0:
+            r = self.comfort_residuals(x)[0]
+            total += float(r @ r)
+            g[N_ROOT_GENES:] += 2.0 * r * self._comfort_scale
+        return total, g

@@ -31,10 +31,11 @@ from .finish import finish_pose
 from .genetic import GAConfig, genetic_search
 from .graph import SNAP_RADIUS, StickFigure, stick_figure_from_strokes
 from .kinematics import PoseModel
-from .lifting import lift_population
+from .lifting import depth_flips, lift_population
 from .normalize import drawing_scale, normalize_figure
 from .objective import EnvPin, StickObjective, Weights
 from .pins import EnvPinSpec, LimbPinSpec, pin_offsets, resolve_pins
+from .ranking import RankWeights, plausibility
 from .refine import RefineResult, refine, refine_least_squares
 from .threads import single_thread_blas
 
@@ -42,6 +43,16 @@ from .threads import single_thread_blas
 #: the best one's plus ``HOPELESS_MARGIN`` is not refined further.
 HOPELESS_RATIO = 10.0
 HOPELESS_MARGIN = 0.05
+#: Suggestions differ by at least one joint this far apart, as a fraction of the height.
+DISTINCT = 0.04
+#: Distinct individuals of the genetic search refined before their depth flips are tried.
+GA_SEEDS = 4
+#: Refined individuals whose depth flips are tried.
+FLIPPED_SEEDS = 2
+#: Candidates refined beyond the number of suggestions.
+EXTRA_CANDIDATES = 3
+#: Residual evaluations of the short (Gauss-Newton) refinement of each candidate.
+SHORT_EVALUATIONS = 15
 
 
 @dataclass(frozen=True)
@@ -69,6 +80,7 @@ class StickInput:
         weights: Objective weights.
         refine_iterations: L-BFGS-B iterations for each suggestion's final refinement.
         polish_evaluations: Gauss-Newton residual evaluations that follow them (0: none).
+        rank: Weights of the plausibility score that orders the suggestions.
     """
 
     skeleton: Skeleton
@@ -91,6 +103,7 @@ class StickInput:
     weights: Weights = field(default_factory=Weights)
     refine_iterations: int = 20
     polish_evaluations: int = 30
+    rank: RankWeights = field(default_factory=RankWeights)
 
 
 @dataclass(frozen=True)
@@ -101,7 +114,9 @@ class Suggestion:
         pose: Local rotations and translations of every bone.
         genes: Gene vector, shape ``(G,)``.
         energy: Objective value.
-        terms: Unweighted energy terms.
+        score: Plausibility score (:mod:`.ranking`) of the refined pose before the pins
+            were placed exactly; suggestions are sorted by it.
+        terms: Unweighted energy terms and the ranking's foreshortening.
         joints: World stick joint positions, shape ``(J, 3)``.
         pin_residuals: Distance of each environment pin from its target, ``(k,)``.
     """
@@ -109,6 +124,7 @@ class Suggestion:
     pose: Pose
     genes: np.ndarray
     energy: float
+    score: float
     terms: dict
     joints: np.ndarray
     pin_residuals: np.ndarray
@@ -192,16 +208,27 @@ def _initial_population(model: PoseModel, bounds: np.ndarray, n: int, stick: Sti
     return lift_population(model, pop, bounds, stick, camera, rng)
 
 
-def _distinct(joints: np.ndarray, order: np.ndarray, k: int, min_dist: float) -> list[int]:
-    """Greedy pick of up to ``k`` indices whose mean joint distances exceed ``min_dist``."""
+def _distinct(joints: np.ndarray, order: np.ndarray, k: int, min_dist: float,
+              reduce=np.max) -> list[int]:
+    """Greedy pick of up to ``k`` indices, in ``order``, of poses that differ.
+
+    Two poses differ when ``reduce`` (max: some joint, a single forearm flipped in depth;
+    mean: the whole body) of their joint distances exceeds ``min_dist``.
+    """
     chosen: list[int] = []
     for i in order:
-        if all(np.mean(np.linalg.norm(joints[i] - joints[c], axis=1)) > min_dist
+        if all(reduce(np.linalg.norm(joints[i] - joints[c], axis=1)) > min_dist
                for c in chosen):
             chosen.append(int(i))
         if len(chosen) == k:
             break
     return chosen
+
+
+def _refine_short(objective: StickObjective, x: np.ndarray, bounds: np.ndarray
+                  ) -> RefineResult:
+    """A few Gauss-Newton steps: enough to settle a candidate in its basin."""
+    return refine_least_squares(objective, x, bounds, max_iterations=SHORT_EVALUATIONS)
 
 
 def _refine_long(objective: StickObjective, x: np.ndarray, bounds: np.ndarray,
@@ -327,35 +354,51 @@ def _solve(inp: StickInput) -> StickResult:
                         rng, inp.ga)
     timings["genetic"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    # Distinct good individuals of the GA (different basins), shortly refined.
     heads, tails, _ = model.forward(ga.population[:256])
     joints = figure.joint_positions(heads, tails)
-    picks = _distinct(joints, np.arange(len(joints)), inp.n_suggestions + 2, 0.08 * height)
-    # Short refinement of every distinct candidate, then a long one of the best few.
-    first = [refine(objective, ga.population[i], bounds, max_iterations=20) for i in picks]
-    order = np.argsort([r.energy for r in first])
-    heads, tails, _ = model.forward(np.array([first[i].x for i in order]))
+    picks = _distinct(joints, np.arange(len(joints)), GA_SEEDS, 0.08 * height, np.mean)
+    first = [_refine_short(objective, ga.population[i], bounds) for i in picks]
+    # Every depth interpretation (near or far end of each limb bone) of the best ones,
+    # ranked by plausibility (:mod:`.ranking`) with the refined ones.
+    tops = np.argsort([r.energy for r in first], kind="stable")[:FLIPPED_SEEDS]
+    pool = np.concatenate([[r.x for r in first]] +
+                          [depth_flips(model, first[i].x, bounds, stick, cam) for i in tops])
+    score, _ = plausibility(objective, pool, inp.rank)
+    heads, tails, _ = model.forward(pool)
+    joints = figure.joint_positions(heads, tails)
+    picks = _distinct(joints, np.argsort(score, kind="stable"),
+                      inp.n_suggestions + EXTRA_CANDIDATES, DISTINCT * height)
+    second = [first[i] if i < len(first) else _refine_short(objective, pool[i], bounds)
+              for i in picks]
+    xs = np.array([r.x for r in second])
+    score, _ = plausibility(objective, xs, inp.rank)
+    order = np.argsort(score, kind="stable")
+    heads, tails, _ = model.forward(xs[order])
     joints = figure.joint_positions(heads, tails)
     best = [order[k] for k in _distinct(joints, np.arange(len(order)), inp.n_suggestions,
-                                         0.03 * height)]
+                                         DISTINCT * height)]
     # A candidate far above the best after the short refinement (a limb through the
     # body or the seat) stays an alternative as it is: its long refinement is skipped.
-    e_best = min(first[i].energy for i in best)
-    refined = [_refine_long(objective, first[i].x, bounds, inp)
-               if first[i].energy <= HOPELESS_RATIO * e_best + HOPELESS_MARGIN else first[i]
+    s_best = min(score[i] for i in best)
+    refined = [_refine_long(objective, second[i].x, bounds, inp)
+               if score[i] <= HOPELESS_RATIO * s_best + HOPELESS_MARGIN else second[i]
                for i in best]
     timings["refine"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    order = np.argsort([r.energy for r in refined])
-    xs = np.array([refined[i].x for i in order])
-    heads, tails, _ = model.forward(xs)
+    # Ranked by the refined poses' plausibility: enforcing the pins afterwards spreads
+    # the targets' own errors (an ankle lying lower than standing) over every suggestion.
+    xs = np.array([r.x for r in refined])
+    score, _ = plausibility(objective, xs, inp.rank)
+    order = np.argsort(score, kind="stable")
+    heads, tails, _ = model.forward(xs[order])
     joints = figure.joint_positions(heads, tails)
-    keep = _distinct(joints, np.arange(len(xs)), inp.n_suggestions, 0.03 * height)
-    suggestions = []
-    for i in keep:
-        x = finish_pose(objective, xs[i], bounds, env_pins, limb_pins)
-        suggestions.append(_suggestion(objective, x, env_pins))
-    suggestions.sort(key=lambda s: s.energy)
+    keep = order[_distinct(joints, np.arange(len(xs)), inp.n_suggestions, DISTINCT * height)]
+    suggestions = [_suggestion(objective, finish_pose(objective, xs[i], bounds, env_pins,
+                                                      limb_pins), env_pins, float(score[i]),
+                               inp.rank)
+                   for i in keep]
     if not suggestions or not np.isfinite(suggestions[0].energy):
         raise SolverError("The stick figure solver found no finite solution.",
                           {"generations": ga.generations})
@@ -366,15 +409,19 @@ def _solve(inp: StickInput) -> StickResult:
     timings["finish"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     return StickResult(tuple(suggestions), stick, figure, seat, root, factor, ga.generations,
-                       tuple(r.iterations for r in first + refined), timings,
+                       tuple(r.iterations for r in first + second + refined), timings,
                        tuple(warnings))
 
 
-def _suggestion(objective: StickObjective, x: np.ndarray, env_pins) -> Suggestion:
+def _suggestion(objective: StickObjective, x: np.ndarray, env_pins, score: float,
+                weights: RankWeights) -> Suggestion:
+    """A finished pose with its energy, ranking score, terms and pin residuals."""
     model = objective.model
     heads, tails, _ = model.forward(x[None])
     e, terms = objective.evaluate(x[None])
+    _, rank_terms = plausibility(objective, x[None], weights)
     joints = model.figure.joint_positions(heads, tails)[0]
     res = np.array([np.linalg.norm(joints[p.joint] - p.target) for p in env_pins])
-    return Suggestion(model.to_pose(x), x, float(e[0]),
-                      {k: float(v[0]) for k, v in terms.items()}, joints, res)
+    terms = {k: float(v[0]) for k, v in terms.items()}
+    terms["foreshortening"] = float(rank_terms["foreshortening"][0])
+    return Suggestion(model.to_pose(x), x, float(e[0]), score, terms, joints, res)

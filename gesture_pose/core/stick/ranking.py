@@ -1,0 +1,93 @@
+"""Ranking depth interpretations: the plausibility score of a pose that fits the drawing.
+
+One view leaves every limb's depth ambiguous: a bone can point towards the viewer or
+away from it and project onto the same drawn line. The drawing terms of Eqs. 4-6 barely
+tell such flips apart (they reproject equally well), so suggestions are ordered by
+
+``S = E + w_f F``
+
+- ``E``: the objective (:class:`.objective.StickObjective`): projection, balance,
+  attachment, collision (Eqs. 4-11) and joint comfort. A flip that sends a limb through
+  the body or the seat, the centre of mass off the support polygon, or a joint towards
+  the end of its range of motion (an arm thrown behind the back, a head turned far away)
+  ranks below one that does not.
+- ``F`` (foreshortening the drawing does not show): for every drawn stick edge,
+  ``((l_proj - min(l_drawn, l_full)) / l_full)^2`` with ``l_proj`` the projected length
+  of the posed 3D edge, ``l_drawn`` the drawn one and ``l_full`` the projection of the
+  whole edge at its depth if it lay in the view plane. A bone drawn at full length must
+  lie in the view plane; a bone drawn short must turn out of it by just as much. Eqs. 4-6
+  weigh directions and (with ``w = 0.1``) positions only, so lengths are otherwise barely
+  constrained.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .objective import StickObjective, project_jacobian
+
+
+@dataclass(frozen=True)
+class RankWeights:
+    """Weight of the foreshortening term (the energy's weight is 1).
+
+    Attributes:
+        foreshortening: Weight of ``F`` (dimensionless, squared length fractions).
+    """
+
+    foreshortening: float = 0.05
+
+
+def foreshortening(objective: StickObjective, joints: np.ndarray) -> np.ndarray:
+    """Foreshortening the drawing does not show, ``F``, for posed stick joints.
+
+    Args:
+        objective: Provides the camera and the drawing.
+        joints: World stick joints, shape ``(P, J, 3)``.
+
+    Returns:
+        ``F`` per individual, shape ``(P,)``: the sum over drawn edges of
+        ``((l_proj - min(l_drawn, l_full)) / l_full)^2``.
+    """
+    cam, stick = objective.camera, objective.stick
+    e = stick.drawn_edges()
+    a, b = joints[:, e[:, 0]], joints[:, e[:, 1]]
+    q, _ = project_jacobian(cam, np.concatenate([a, b], 1), jacobian=False)
+    n = e.shape[0]
+    proj = np.linalg.norm(q[:, n:] - q[:, :n], axis=-1)
+    drawn = np.linalg.norm(stick.points[e[:, 1]] - stick.points[e[:, 0]], axis=-1)
+    length = np.linalg.norm(b - a, axis=-1)
+    mid = 0.5 * (a + b)
+    # The whole edge's projection in the view plane at its depth: a segment of the same
+    # length across the view direction through the midpoint.
+    across = cam.view_matrix[0, :3]  # the view's right axis (unit)
+    ends = np.stack([mid - 0.5 * length[..., None] * across,
+                     mid + 0.5 * length[..., None] * across], 2)
+    qe, _ = project_jacobian(cam, ends, jacobian=False)
+    full = np.maximum(np.linalg.norm(qe[..., 1, :] - qe[..., 0, :], axis=-1), 1e-9)
+    return np.sum(((proj - np.minimum(drawn, full)) / full) ** 2, axis=-1)
+
+
+def plausibility(objective: StickObjective, genes: np.ndarray,
+                 weights: RankWeights = RankWeights(), collision: bool = True
+                 ) -> tuple[np.ndarray, dict]:
+    """The ranking score ``S = E + w_f F`` of a population (lower ranks first).
+
+    Args:
+        objective: The energy (Eqs. 4-11 and joint comfort).
+        genes: Gene vectors, shape ``(P, G)``.
+        weights: Weight of ``F``.
+        collision: Include the collision energy (Eq. 11) in ``E``.
+
+    Returns:
+        ``(S (P,), terms)``: the energy's terms (:meth:`.StickObjective.evaluate`) plus
+        ``"energy"`` and ``"foreshortening"``, each ``(P,)``.
+    """
+    x = np.atleast_2d(genes)
+    heads, tails, _ = objective.model.forward(x)
+    energy, terms = objective.evaluate(x, collision)
+    f = foreshortening(objective, objective.model.figure.joint_positions(heads, tails))
+    return energy + weights.foreshortening * f, {**terms, "energy": energy,
+                                                 "foreshortening": f}
