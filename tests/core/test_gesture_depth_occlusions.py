@@ -218,3 +218,38 @@ def test_forearm_pointing_ahead_of_a_turned_character_goes_away_from_the_viewer(
     plain = solve_pose3d(sk, emb, cam, options=DepthOptions(read_facing=False))
     flat = cam.depth(plain.joints3d)
     assert flat[k] - flat[s.head_joint[3]] < -0.3  # the viewer-facing reading
+
+
+def test_bind_side_is_dropped_for_a_bone_turned_far_in_the_image():
+    from tests.core.fixtures import chain_skeleton
+
+    # The second bone points half towards the camera in the bind pose (depth slope -0.7).
+    pts = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.5, -0.5, 1.0]])
+    sk = chain_skeleton(pts)
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=True)
+    # Drawn turned to the other side in the image, foreshortened to a third and pointing
+    # away from the camera.
+    d0 = pts[2] - pts[1]
+    d1 = np.array([-0.2, 0.65, 0.1]) * np.linalg.norm(d0) / np.linalg.norm([-0.2, 0.65, 0.1])
+    axis = np.cross(d0, d1)
+    angle = np.arccos(np.clip(d0 @ d1 / (d0 @ d0), -1.0, 1.0))
+    rot = np.tile(np.eye(3), (2, 1, 1))
+    rot[1] = exp_map(sk.rest_frames[1].T @ (axis / np.linalg.norm(axis)) * angle)
+    truth = Pose(rot, np.zeros((2, 3)))
+    emb = project_embedding(sk, s, truth, cam, 0.05)
+    k = s.tail_joint[1]
+    tj = joints_of(s, sk, truth)
+    np.testing.assert_allclose(tj[k] - tj[s.head_joint[1]], d1, atol=1e-9)
+    opts = DepthOptions(toward_viewer=False)
+    res = solve_pose3d(sk, emb, cam, options=opts)
+    got = cam.depth(res.joints3d)
+    assert got[k] - got[s.head_joint[1]] > 0.5  # truth: 0.65 away from the viewer
+    from gesture_pose.core.gesture.depth import twist
+
+    jm = twist.joint_map(sk, s)
+    frame = view_frame(cam, s.rest_joints.mean(axis=0))
+    _, kept = start.start_pose(sk, jm, frame, [], emb, Pose.identity(2), False)
+    _, old = start.start_pose(sk, jm, frame, [], emb, Pose.identity(2), False,
+                              bind_turn=np.pi)
+    assert kept[1] == 1.0 and old[1] == -1.0  # away, not the bind pose's towards

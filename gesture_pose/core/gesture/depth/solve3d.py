@@ -75,6 +75,8 @@ class DepthOptions:
         merit_weight: Weight of the constraint violation (per mean link length) against
             the drawing energy in the step-halving line search.
         toward_viewer: Default side of a foreshortened bone the drawing does not decide.
+        bind_turn: Largest angle between a bone's drawn direction and its bind direction
+            for the start to keep the bind pose's depth side, radians (ours).
         read_facing: Read from the left/right order of the drawn hips and shoulders
             whether the character is turned around; if so the bind pose's depth sides
             (start and E_v's reference) and the default side are reversed.
@@ -101,6 +103,7 @@ class DepthOptions:
     energy_tolerance: float = 1e-4
     merit_weight: float = 10.0
     toward_viewer: bool = True
+    bind_turn: float = float(np.radians(45.0))
     read_facing: bool = True
     soft_penalty: float = 1e7
 
@@ -198,11 +201,14 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
     confidence = np.where(visible[a] & visible[b], 1.0, opts.hidden_weight)
     if link_confidence is not None:
         confidence = confidence * np.asarray(link_confidence, dtype=float)
+    # E_v's reference: the bind pose's depth change of each link, reversed for a character
+    # drawn turned around.
+    reference = facing * frame.depth(X_rest[b] - X_rest[a]) if opts.bind_depth else None
     terms = [energies.conformity_term(frame, embedding.joints2d, a, b, lengths, n_j,
                                       confidence),
              energies.foreshortening_term(
                  frame, a, b, lengths, weights, n_j,
-                 facing * frame.depth(X_rest[b] - X_rest[a]) if opts.bind_depth else None)]
+                 reference)]
     free = np.zeros(n_j, bool)
     free[b] = weights == 0.0
     spline = regularity.spline_term(embedding, X_rest, frame, opts.spline_weight, free)
@@ -306,7 +312,8 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     timings = {"setup": time.perf_counter() - t0}
     t1 = time.perf_counter()
     current, _ = start.start_pose(skeleton, setup.jmap, setup.frame, setup.order, embedding,
-                                  bind, opts.toward_viewer, pinned, setup.facing)
+                                  bind, opts.toward_viewer, pinned, setup.facing,
+                                  opts.bind_turn)
     timings["start"] = time.perf_counter() - t1
     jm = setup.jmap
     warnings: list[str] = []

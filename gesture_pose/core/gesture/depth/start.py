@@ -2,12 +2,13 @@
 
 A drawn link fixes how much a bone leaves the view plane, ``sqrt(l^2 - l_2d^2)``, not to
 which side. The start aims every solving bone at its drawn direction, lifted by that
-amount, on the bind pose's side when the bone clearly has one (depth slope above 0.3), else
-towards the character's front (its ``.L`` side is its own left), or towards the viewer when
-the front is not clear (a side view); then sides that break depth-order constraints are
-flipped greedily. When the drawing shows the character turned around (its left and right
-hips or shoulders swapped in the image, :func:`drawn_facing`), the bind pose's sides and
-its front are reversed.
+amount, on the bind pose's side when the bone clearly has one (depth slope above 0.3) and
+is drawn within 45 degrees of its bind direction, else towards the character's front (its
+``.L`` side is its own left), or towards the viewer when the front is not clear (a side
+view); then sides that break depth-order constraints are flipped greedily. When the
+drawing shows the character turned around (its left and right hips or shoulders swapped
+in the image, :func:`drawn_facing`), the bind pose's sides and its front are reversed.
+
 Starting lifted matters: from a flat pose the linearized projection cannot shorten a bone
 (the depth direction is a saddle), so the SQP alone would never leave the view plane.
 """
@@ -111,6 +112,25 @@ def drawn_facing(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np
     return -1.0
 
 
+def near_bind_direction(drawn: np.ndarray, rest: np.ndarray, frame: ViewFrame,
+                        max_angle: float = np.radians(45.0)) -> np.ndarray:
+    """Whether each link is drawn within ``max_angle`` of its bind direction in the image.
+
+    Args:
+        drawn: Drawn link vectors, pixels, shape ``(k, 2)``.
+        rest: Bind-pose link vectors, world units, shape ``(k, 3)``.
+        frame: The view.
+        max_angle: Largest angle, radians.
+
+    Returns:
+        Shape ``(k,)`` bool.
+    """
+    rest2 = np.stack([rest @ frame.right, rest @ frame.up], axis=1)
+    cos = np.sum(drawn * rest2, axis=1) / np.maximum(
+        np.linalg.norm(drawn, axis=1) * np.linalg.norm(rest2, axis=1), 1e-12)
+    return cos >= np.cos(max_angle)
+
+
 def lifted_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                 embedding: Embedding2D, bind: Pose, signs: np.ndarray, fixed: np.ndarray
                 ) -> Pose:
@@ -149,7 +169,8 @@ def lifted_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
 def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                order: list[OrderingConstraint], embedding: Embedding2D, bind: Pose,
                toward_viewer: bool = True, pinned: np.ndarray | None = None,
-               facing: float = 1.0) -> tuple[Pose, np.ndarray]:
+               facing: float = 1.0, bind_turn: float = np.radians(45.0)
+               ) -> tuple[Pose, np.ndarray]:
     """The lifted start pose and the depth side of each solving bone.
 
     Args:
@@ -163,6 +184,8 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         pinned: Bones kept at their bind rotation, ``(n,)`` bool (full skeleton).
         facing: -1 when the drawing shows the character turned around
             (:func:`drawn_facing`): the bind pose's sides and the default are reversed.
+        bind_turn: Largest angle between a bone's drawn direction and its bind direction
+            in the image for the bind pose's side to be kept, radians.
 
     Returns:
         ``(pose, signs)``: the start pose and the sides, ``(m,)``.
@@ -175,7 +198,14 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         / skeleton.lengths[jm.bones]
     front = bind_front(embedding.solving, embedding.solving.rest_joints, f)
     default = facing * front if front != 0.0 else (-1.0 if toward_viewer else 1.0)
-    signs = np.where(np.abs(bind_slope) > 0.3, facing * np.sign(bind_slope), default)
+    # The bind pose's side is kept only for bones drawn near their bind direction: a bone
+    # turned far in the image (a tail curled over the back) has left that side behind.
+    sk = embedding.solving
+    drawn = embedding.joints2d[sk.tail_joint] - embedding.joints2d[sk.head_joint]
+    near = near_bind_direction(drawn, state.tails[jm.bones] - state.heads[jm.bones], f,
+                               bind_turn)
+    kept = (np.abs(bind_slope) > 0.3) & near
+    signs = np.where(kept, facing * np.sign(bind_slope), default)
     pose = lifted_pose(skeleton, jm, f, embedding, bind, signs, fixed)
     if not order:
         return pose, signs
