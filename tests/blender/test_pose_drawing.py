@@ -56,10 +56,10 @@ def _height(skeleton) -> float:
     return float(np.ptp(pts, axis=0).max())
 
 
-def _errors(solving, skeleton, truth_pose, got_pose, camera):
-    """Mean joint error (% of height, root aligned) and the signs of the depth changes
-    (from the rest pose) of the links that both the truth and the result turn in depth by
-    more than a fifth of their length."""
+def _errors(solving, skeleton, truth_pose, got_pose, camera, clear: float = 0.2):
+    """Mean joint error (% of height, root aligned) and each link's depth change along it
+    (tail minus head, over its length) for the links whose true depth change is clearly
+    non-zero (above ``clear``): the truth's signs and the result's changes."""
     tj = posed_joints(solving, skeleton, truth_pose)
     gj = posed_joints(solving, skeleton, got_pose)
     gj = gj - gj[0] + tj[0]
@@ -68,43 +68,51 @@ def _errors(solving, skeleton, truth_pose, got_pose, camera):
     child = np.flatnonzero(solving.joint_parent >= 0)
     par = solving.joint_parent[child]
     f = camera.forward
-    d_truth = (tj[child] - tj[par]) @ f - (rest[child] - rest[par]) @ f
-    d_got = (gj[child] - gj[par]) @ f - (rest[child] - rest[par]) @ f
     length = np.linalg.norm(rest[child] - rest[par], axis=1)
-    big = (np.abs(d_truth) > 0.2 * length) & (np.abs(d_got) > 0.2 * length)
-    return err, np.sign(d_truth[big]), np.sign(d_got[big])
+    d_truth = (tj[child] - tj[par]) @ f / length
+    d_got = (gj[child] - gj[par]) @ f / length
+    big = np.abs(d_truth) > clear
+    return err, np.sign(d_truth[big]), d_got[big]
+
+
+def _sign_rate(sign_truth: np.ndarray, d_got: np.ndarray, moved: float = 0.1) -> float:
+    """Fraction of the clearly turned links the result turns the same way by more than
+    ``moved`` of their length (a link left in the view plane counts as wrong)."""
+    return float(np.mean(np.sign(d_got) * (np.abs(d_got) > moved) == sign_truth))
 
 
 @pytest.mark.parametrize(
-    ("kind", "pose_name", "direction", "limit", "min_turned"),
-    [("humanoid", "foreshortened", (0.0, -1.0, 0.0), 3.0, 1),
-     ("humanoid", "wave", (0.0, -1.0, 0.0), 3.0, 0),
-     ("humanoid", "kick_right_leg", (0.0, -1.0, 0.0), 4.0, 0),
-     ("humanoid", "reach", (0.5, -1.0, 0.2), 9.0, 0),
-     ("quadruped", "tail_up", (1.0, -0.6, 0.2), 5.0, 0),
-     ("quadruped", "paw_forward", (1.0, 0.0, 0.0), 3.0, 0)],
+    ("kind", "pose_name", "direction", "limit", "min_turned", "min_rate"),
+    # Measured sign rates: 1, 1, 0.5 (the kicked thigh and shin, turned by a third of
+    # their length, are drawn 3% short and E_v reads them as in the view plane), 0.85,
+    # 0.90 (the curled tail's tip: its two sides are drawn alike), 1.
+    [("humanoid", "foreshortened", (0.0, -1.0, 0.0), 3.0, 4, 1.0),
+     ("humanoid", "wave", (0.0, -1.0, 0.0), 3.0, 2, 1.0),
+     ("humanoid", "kick_right_leg", (0.0, -1.0, 0.0), 4.0, 4, 0.5),
+     ("humanoid", "reach", (0.5, -1.0, 0.2), 9.0, 20, 0.85),
+     ("quadruped", "tail_up", (1.0, -0.6, 0.2), 5.0, 21, 0.9),
+     ("quadruped", "paw_forward", (1.0, 0.0, 0.0), 3.0, 4, 1.0)],
 )
 def test_lifting_recovers_known_poses(registered, kind, pose_name, direction, limit,
-                                      min_turned):
+                                      min_turned, min_rate):
     arm, cam, bind, truth = _character(kind, pose_name, direction)
     solving = solving_skeleton(bind.skeleton)
     emb = project_embedding(bind.skeleton, solving, truth.pose, cam, 0.06, "auto")
     res = solve_pose3d(bind.skeleton, emb, cam, bind.pose)
-    err, sign_truth, sign_got = _errors(solving, bind.skeleton, truth.pose, res.pose, cam)
+    err, sign_truth, d_got = _errors(solving, bind.skeleton, truth.pose, res.pose, cam)
     assert res.converged and np.all(res.ordering_satisfied)
     assert err < limit
-    # Bones turned clearly in depth turn the same way as in the truth.
+    # Links turned clearly in depth in the truth: the result turns them the same way.
     assert sign_truth.size >= min_turned
-    assert np.array_equal(sign_truth, sign_got)
+    assert _sign_rate(sign_truth, d_got) >= min_rate
     assert res.timings["total"] < 5.0
 
 
-@pytest.fixture
-def traced_humanoid(registered):
-    """Humanoid with its left arm raised, traced from the front into a Grease Pencil sketch;
-    the armature is back at rest (the bind pose)."""
-    arm, cam, bind, truth = _character("humanoid", "raise_left_arm", (0.0, -1.0, 0.0))
-    builders.apply_rotations(arm, builders.HUMANOID_POSES["raise_left_arm"])
+def _traced(kind: str, pose_name: str, direction):
+    """A character posed, traced into a sketch, then put back at rest (the bind pose)."""
+    arm, cam, bind, truth = _character(kind, pose_name, direction)
+    poses = builders.HUMANOID_POSES if kind == "humanoid" else builders.QUADRUPED_POSES
+    builders.apply_rotations(arm, poses[pose_name])
     bpy.context.view_layer.update()
     meshes = read_skinned_meshes(arm, truth.skeleton)
     traced = trace_contours(meshes.deformed_vertices, meshes.triangles, cam)
@@ -112,6 +120,33 @@ def traced_humanoid(registered):
     bpy.context.view_layer.update()
     sketch = builders.add_grease_pencil("Sketch", list(traced.world(cam)))
     return arm, sketch, cam, bind, truth
+
+
+# Oblique views, where most bones leave the view plane. Measured with the 2D fit of this
+# commit: errors 7.6, 6.3 and 6.2 % of the height, signs right for 21/22, 15/15 and 20/23
+# clearly turned links; the limits leave room for the 2D fit's changes.
+@pytest.mark.parametrize(
+    ("kind", "pose_name", "direction"),
+    [("humanoid", "crouch", (0.5, -1.0, 0.2)), ("humanoid", "step", (0.5, -1.0, 0.2)),
+     ("quadruped", "paw_forward", (1.0, -0.6, 0.2))],
+)
+def test_whole_pose_of_traced_oblique_drawings(registered, kind, pose_name, direction):
+    arm, sketch, cam, bind, truth = _traced(kind, pose_name, direction)
+    rep = pose_drawing.pose_from_drawing(arm, sketch, cam, insert_keys=False, show_fit=False)
+    bpy.context.view_layer.update()
+    err, sign_truth, d_got = _errors(rep.embedding.solving, bind.skeleton, truth.pose,
+                                     read_armature(arm).pose, cam)
+    assert err < 10.0
+    assert sign_truth.size >= 12
+    assert _sign_rate(sign_truth, d_got) >= 0.75
+    assert rep.timings["solve3d"] < 5.0
+
+
+@pytest.fixture
+def traced_humanoid(registered):
+    """Humanoid with its left arm raised, traced from the front into a Grease Pencil sketch;
+    the armature is back at rest (the bind pose)."""
+    return _traced("humanoid", "raise_left_arm", (0.0, -1.0, 0.0))
 
 
 def test_pose_operator_on_a_traced_drawing(traced_humanoid):
@@ -139,9 +174,9 @@ def test_pose_operator_on_a_traced_drawing(traced_humanoid):
     fit = sketch.data.layers.get(pose_drawing.FIT_LAYER)
     assert fit is not None and len(fit.current_frame().drawing.strokes) >= solving.n_bones
     # The drawn pose is recovered (the 2D fit's errors carry into 3D).
-    err, sign_truth, sign_got = _errors(solving, after.skeleton, truth.pose, after.pose, cam)
+    err, sign_truth, d_got = _errors(solving, after.skeleton, truth.pose, after.pose, cam)
     assert err < 12.0
-    assert np.array_equal(sign_truth, sign_got)
+    assert _sign_rate(sign_truth, d_got) == 1.0
     # The fit layer is not read back as drawing: posing again gives the same pose.
     with bpy.context.temp_override(active_object=arm, object=arm):
         assert bpy.ops.gesture_pose.pose_drawing(armature=arm.name,
@@ -151,21 +186,14 @@ def test_pose_operator_on_a_traced_drawing(traced_humanoid):
 
 
 def test_pose_on_a_traced_quadruped(registered):
-    arm, cam, bind, truth = _character("quadruped", "paw_forward", (1.0, 0.0, 0.0))
-    builders.apply_rotations(arm, builders.QUADRUPED_POSES["paw_forward"])
-    bpy.context.view_layer.update()
-    meshes = read_skinned_meshes(arm, truth.skeleton)
-    traced = trace_contours(meshes.deformed_vertices, meshes.triangles, cam)
-    builders.reset_pose(arm)
-    bpy.context.view_layer.update()
-    sketch = builders.add_grease_pencil("Sketch", list(traced.world(cam)))
+    arm, sketch, cam, bind, truth = _traced("quadruped", "paw_forward", (1.0, 0.0, 0.0))
     rep = pose_drawing.pose_from_drawing(arm, sketch, cam, show_fit=False)
     assert rep.written and rep.result.converged
     bpy.context.view_layer.update()
-    err, sign_truth, sign_got = _errors(rep.embedding.solving, bind.skeleton, truth.pose,
-                                        read_armature(arm).pose, cam)
+    err, sign_truth, d_got = _errors(rep.embedding.solving, bind.skeleton, truth.pose,
+                                     read_armature(arm).pose, cam)
     assert err < 15.0
-    assert np.array_equal(sign_truth, sign_got)
+    assert _sign_rate(sign_truth, d_got) == 1.0
     assert rep.timings["solve3d"] < 5.0
 
 
