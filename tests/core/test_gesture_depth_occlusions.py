@@ -253,3 +253,9 @@ def test_bind_side_is_dropped_for_a_bone_turned_far_in_the_image():
     _, old = start.start_pose(sk, jm, frame, [], emb, Pose.identity(2), False,
                               bind_turn=np.pi)
     assert kept[1] == 1.0 and old[1] == -1.0  # away, not the bind pose's towards
+
+
+def test_left_side_names():
+    assert [start._is_left(n) for n in ("upper_arm.L", "hip_l", "Arm-L", "mixamorig:LeftArm",
+                                        "upper_arm.R", "Right_Foot_Ball", "spine")] == \
+        [True, True, True, True, False, False, False]

@@ -40,6 +40,11 @@ def _first_pairs(solving: SolvingSkeleton) -> np.ndarray:
     return pairs[level == level.min()]
 
 
+def _is_left(bone: str) -> bool:
+    """Whether a bone name is on the left side (``.L``, ``_l``, ``-L``, ``Left...``)."""
+    return bone[-2:] in {f"{sep}{x}" for sep in ".-_" for x in "Ll"} or "Left" in bone
+
+
 def bind_front(solving: SolvingSkeleton, rest_joints: np.ndarray, frame: ViewFrame,
                min_slope: float = 0.3) -> float:
     """Which way the bind pose faces along the view: -1 towards the viewer, +1 away, 0 unclear.
@@ -61,9 +66,8 @@ def bind_front(solving: SolvingSkeleton, rest_joints: np.ndarray, frame: ViewFra
     pairs = _first_pairs(solving)
     if not len(pairs):
         return 0.0
-    names = solving.joint_bones
-    left = np.array([1.0 if names[i].rpartition(" ")[0].lower().endswith(("l", "left"))
-                     or "Left" in names[i] else -1.0 for i, _ in pairs])
+    left = np.array([1.0 if _is_left(solving.joint_bones[i].rpartition(" ")[0]) else -1.0
+                     for i, _ in pairs])
     across = np.sum(left[:, None] * (rest_joints[pairs[:, 0]] - rest_joints[pairs[:, 1]]),
                     axis=0)
     front = np.cross(across, frame.up)
