@@ -2,6 +2,10 @@
 
 Every bone with skinned vertices becomes a capsule: its posed segment head-tail and a
 radius, the median distance from the bone's segment of the rest vertices it dominates.
+A bone that stops well short of its children (rigs imported from glTF give every bone a
+token length) has its segment run from its head to the head of the child along which its
+vertices spread instead, so that a shin is a capsule from knee to ankle, not a 37 cm
+sphere at the knee.
 Body collisions are checked between non-adjacent capsules (no shared joint, more than
 two bones apart in the hierarchy); environment collisions sample each capsule's axis
 against a distance grid of the environment (see :mod:`.environment`). The penalty is
@@ -23,14 +27,42 @@ class Capsules:
     """Capsules of the body.
 
     Attributes:
-        bones: Bone of each capsule, shape ``(c,)``.
+        bones: Bone of each capsule, shape ``(c,)``; its head starts the capsule.
         radii: Radii in world units, shape ``(c,)``.
         pairs: Non-adjacent capsule pairs checked for self-collision, shape ``(q, 2)``.
+        ends: Where each capsule ends, as an index into the bones' heads and tails stacked
+            (``(2n, 3)``: ``b`` is bone ``b``'s head, ``n + b`` its tail), shape ``(c,)``;
+            None: each bone's own tail.
     """
 
     bones: np.ndarray
     radii: np.ndarray
     pairs: np.ndarray
+    ends: np.ndarray | None = None
+
+    def end_index(self, n_bones: int) -> np.ndarray:
+        """Index of each capsule's end in the stacked heads and tails, ``(c,)``."""
+        return n_bones + self.bones if self.ends is None else self.ends
+
+    def segments(self, heads: np.ndarray, tails: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """Capsule axes' starts and ends ``(..., c, 3)`` from heads and tails ``(..., n, 3)``."""
+        both = np.concatenate([heads, tails], axis=-2)
+        return both[..., self.bones, :], both[..., self.end_index(heads.shape[-2]), :]
+
+    def segment_jacobians(self, jh: np.ndarray, jt: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray]:
+        """Jacobians of the capsule ends ``(c, 3, G)`` twice from the bones' ``(n, 3, G)``."""
+        both = np.concatenate([jh, jt], axis=0)
+        return both[self.bones], both[self.end_index(jh.shape[0])]
+
+    def scatter(self, g_start: np.ndarray, g_end: np.ndarray, n_bones: int
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """Gradients on capsule ends ``(P, c, 3)`` -> on bone heads and tails ``(P, n, 3)``."""
+        both = np.zeros((g_start.shape[0], 2 * n_bones, 3))
+        np.add.at(both, (slice(None), self.bones), g_start)
+        np.add.at(both, (slice(None), self.end_index(n_bones)), g_end)
+        return both[:, :n_bones], both[:, n_bones:]
 
 
 def point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -79,19 +111,44 @@ def capsules_from_mesh(skeleton: Skeleton, vertices: np.ndarray | None = None,
     if vertices is None or weights is None or len(vertices) == 0:
         bones = np.flatnonzero(skeleton.deform) if np.any(skeleton.deform) else np.arange(n)
         radii = default_ratio * skeleton.lengths[bones]
+        ends = n + bones
     else:
         owner = np.argmax(weights, axis=1)
         strong = weights[np.arange(len(owner)), owner] > 0.3
-        bones, radii = [], []
+        bones, radii, ends = [], [], []
         for i in range(n):
             sel = vertices[(owner == i) & strong]
             if len(sel) < 4:
                 continue
-            d = point_segment_distance(sel, skeleton.rest_heads[i], skeleton.rest_tails[i])
+            end = _segment_end(skeleton, i, sel)
+            tip = skeleton.rest_tails[i] if end >= n else skeleton.rest_heads[end]
+            d = point_segment_distance(sel, skeleton.rest_heads[i], tip)
             bones.append(i)
             radii.append(float(np.median(d)))
-        bones, radii = np.array(bones, int), np.array(radii)
-    return Capsules(bones, radii, _non_adjacent(skeleton, bones))
+            ends.append(end)
+        bones, radii, ends = np.array(bones, int), np.array(radii), np.array(ends, int)
+    return Capsules(bones, radii, _non_adjacent(skeleton, bones), ends)
+
+
+def _segment_end(skeleton: Skeleton, bone: int, vertices: np.ndarray,
+                 short: float = 0.5) -> int:
+    """End of a bone's capsule: ``n + bone`` (its tail) or a child's index (its head).
+
+    A child's head is used when the bone is shorter than ``short`` times the distance to
+    it; the child is the one lying best along the principal axis of the bone's vertices.
+    """
+    n, head = skeleton.n_bones, skeleton.rest_heads[bone]
+    kids = np.flatnonzero(skeleton.parents == bone)
+    if kids.size == 0:
+        return n + bone
+    to_kid = skeleton.rest_heads[kids] - head
+    dist = np.linalg.norm(to_kid, axis=1)
+    centred = vertices - vertices.mean(0)
+    axis = np.linalg.svd(centred, full_matrices=False)[2][0]
+    k = int(np.argmax(np.abs(to_kid @ axis) / np.maximum(dist, 1e-12)))
+    if skeleton.lengths[bone] >= short * dist[k] or dist[k] < 1e-9:
+        return n + bone
+    return int(kids[k])
 
 
 def _non_adjacent(skeleton: Skeleton, bones: np.ndarray) -> np.ndarray:
@@ -126,20 +183,21 @@ def body_collision(caps: Capsules, heads: np.ndarray, tails: np.ndarray,
         z = np.zeros(heads.shape[0])
         return z, (np.zeros_like(heads) if grad else None), (np.zeros_like(tails) if grad
                                                              else None)
-    ba, bb = caps.bones[caps.pairs[:, 0]], caps.bones[caps.pairs[:, 1]]
-    p0, p1, q0, q1 = heads[:, ba], tails[:, ba], heads[:, bb], tails[:, bb]
+    a, b = caps.pairs[:, 0], caps.pairs[:, 1]
+    start, end = caps.segments(heads, tails)
+    p0, p1, q0, q1 = start[:, a], end[:, a], start[:, b], end[:, b]
     s, t, d = segment_closest(p0, p1, q0, q1)
-    pen = np.maximum(caps.radii[caps.pairs[:, 0]] + caps.radii[caps.pairs[:, 1]] - d, 0.0)
+    pen = np.maximum(caps.radii[a] + caps.radii[b] - d, 0.0)
     energy = np.sum(pen**2, axis=1)
     if not grad:
         return energy, None, None
     diff = p0 + s[..., None] * (p1 - p0) - q0 - t[..., None] * (q1 - q0)
     u = diff / np.maximum(d, 1e-12)[..., None]
     g = (-2.0 * pen)[..., None] * u  # dE/d(closest point on a)
-    gh, gt = np.zeros_like(heads), np.zeros_like(tails)
-    for arr, bones_, coef in ((gh, ba, (1 - s)), (gt, ba, s), (gh, bb, -(1 - t)), (gt, bb, -t)):
-        np.add.at(arr, (slice(None), bones_), coef[..., None] * g)
-    return energy, gh, gt
+    g0, g1 = np.zeros_like(start), np.zeros_like(end)
+    for arr, idx, coef in ((g0, a, (1 - s)), (g1, a, s), (g0, b, -(1 - t)), (g1, b, -t)):
+        np.add.at(arr, (slice(None), idx), coef[..., None] * g)
+    return (energy,) + caps.scatter(g0, g1, heads.shape[-2])
 
 
 def axis_samples(n_samples: int) -> np.ndarray:

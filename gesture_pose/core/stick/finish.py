@@ -87,8 +87,8 @@ def finish_pose(objective: StickObjective, x: np.ndarray, bounds: np.ndarray,
         pen = np.zeros(len(X))
         if np.any(sel):
             u = np.linspace(0, 1, 5)
-            pts = (heads[:, caps.bones[sel], None] * (1 - u)[:, None] +
-                   tails[:, caps.bones[sel], None] * u[:, None])
+            start, end = caps.segments(heads, tails)
+            pts = start[:, sel, None] * (1 - u)[:, None] + end[:, sel, None] * u[:, None]
             d, _ = objective.grid.sample(pts, limit=1.001 * caps.radii[sel].max())
             pen = np.sum(np.maximum(caps.radii[sel][None, :, None] - d, 0) ** 2, (1, 2))
         e, _ = objective.evaluate(X, collision=False)

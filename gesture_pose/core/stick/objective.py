@@ -279,18 +279,21 @@ class StickObjective:
             e_body, gh, gt = np.zeros(heads.shape[0]), None, None
         energy = e_body
         if self.grid is not None and np.any(self.env_capsules):
-            bones = self.capsules.bones[self.env_capsules]
-            radii = self.capsules.radii[self.env_capsules]
+            on = self.env_capsules
+            radii = self.capsules.radii[on]
+            start, end = self.capsules.segments(heads, tails)
             u = axis_samples(samples)
-            pts = (heads[:, bones, None] * (1 - u)[:, None] + tails[:, bones, None] *
-                   u[:, None])
+            pts = start[:, on, None] * (1 - u)[:, None] + end[:, on, None] * u[:, None]
             d, gd = self.grid.sample(pts, limit=1.001 * radii.max())
             pen = np.maximum(radii[None, :, None] - d, 0.0)
             energy = energy + np.sum(pen**2, axis=(1, 2))
             if grad:
                 gp = -2.0 * pen[..., None] * gd
-                np.add.at(gh, (slice(None), bones), np.einsum("pcmd,m->pcd", gp, 1 - u))
-                np.add.at(gt, (slice(None), bones), np.einsum("pcmd,m->pcd", gp, u))
+                g0, g1 = np.zeros_like(start), np.zeros_like(end)
+                g0[:, on] = np.einsum("pcmd,m->pcd", gp, 1 - u)
+                g1[:, on] = np.einsum("pcmd,m->pcd", gp, u)
+                eh, et = self.capsules.scatter(g0, g1, heads.shape[-2])
+                gh, gt = gh + eh, gt + et
         if grad:
             return energy / scale, gh / scale, gt / scale
         return energy / scale, None, None
@@ -397,18 +400,17 @@ class StickObjective:
         if collision:
             c = np.sqrt(w.collision) / (0.05 * self.height)
             caps = self.capsules
+            start, end = caps.segments(heads, tails)
             if len(caps.pairs):
-                ba, bb = caps.bones[caps.pairs[:, 0]], caps.bones[caps.pairs[:, 1]]
-                _, _, d = segment_closest(heads[:, ba], tails[:, ba], heads[:, bb],
-                                          tails[:, bb])
-                rr = caps.radii[caps.pairs[:, 0]] + caps.radii[caps.pairs[:, 1]]
+                ca, cb = caps.pairs[:, 0], caps.pairs[:, 1]
+                _, _, d = segment_closest(start[:, ca], end[:, ca], start[:, cb], end[:, cb])
+                rr = caps.radii[ca] + caps.radii[cb]
                 out.append(c * np.maximum(rr - d, 0.0))
             if self.grid is not None and np.any(self.env_capsules):
-                bones = caps.bones[self.env_capsules]
-                radii = caps.radii[self.env_capsules]
+                on = self.env_capsules
+                radii = caps.radii[on]
                 s = axis_samples(5)
-                pts = (heads[:, bones, None] * (1 - s)[:, None] +
-                       tails[:, bones, None] * s[:, None])
+                pts = start[:, on, None] * (1 - s)[:, None] + end[:, on, None] * s[:, None]
                 d, _ = self.grid.sample(pts, limit=1.001 * radii.max())
                 out.append(c * np.maximum(radii[None, :, None] - d, 0.0).reshape(P, -1))
         return np.concatenate(out, axis=1)
@@ -468,11 +470,13 @@ class StickObjective:
         if collision:
             c = np.sqrt(w.collision) / (0.05 * self.height)
             caps = self.capsules
+            start, end = caps.segments(heads, tails)
+            J0, J1 = caps.segment_jacobians(Jh, Jt)
             if len(caps.pairs):
-                ba, bb = caps.bones[caps.pairs[:, 0]], caps.bones[caps.pairs[:, 1]]
-                p0, p1, q0, q1 = heads[ba], tails[ba], heads[bb], tails[bb]
+                ca, cb = caps.pairs[:, 0], caps.pairs[:, 1]
+                p0, p1, q0, q1 = start[ca], end[ca], start[cb], end[cb]
                 s_, t_, d = segment_closest(p0, p1, q0, q1)
-                rr = caps.radii[caps.pairs[:, 0]] + caps.radii[caps.pairs[:, 1]]
+                rr = caps.radii[ca] + caps.radii[cb]
                 pen = np.maximum(rr - d, 0.0)
                 jac = np.zeros((len(pen), G))
                 on = np.flatnonzero(pen > 0)
@@ -480,23 +484,24 @@ class StickObjective:
                     s1, t1 = s_[on, None], t_[on, None]
                     diff = p0[on] + s1 * (p1[on] - p0[on]) - q0[on] - t1 * (q1[on] - q0[on])
                     un = diff / np.maximum(d[on], 1e-12)[:, None]
-                    dd = ((1 - s1)[..., None] * Jh[ba[on]] + s1[..., None] * Jt[ba[on]] -
-                          (1 - t1)[..., None] * Jh[bb[on]] - t1[..., None] * Jt[bb[on]])
+                    a_, b_ = ca[on], cb[on]
+                    dd = ((1 - s1)[..., None] * J0[a_] + s1[..., None] * J1[a_] -
+                          (1 - t1)[..., None] * J0[b_] - t1[..., None] * J1[b_])
                     jac[on] = -np.einsum("qd,qdg->qg", un, dd)
                 rs.append(c * pen)
                 js.append(c * jac)
             if self.grid is not None and np.any(self.env_capsules):
-                cb = caps.bones[self.env_capsules]
-                radii = caps.radii[self.env_capsules]
+                cc = np.flatnonzero(self.env_capsules)
+                radii = caps.radii[cc]
                 sm = axis_samples(5)
-                pts = heads[cb, None] * (1 - sm)[:, None] + tails[cb, None] * sm[:, None]
+                pts = start[cc, None] * (1 - sm)[:, None] + end[cc, None] * sm[:, None]
                 d, gd = self.grid.sample(pts, limit=1.001 * radii.max())
                 pen = np.maximum(radii[:, None] - d, 0.0)
                 jac = np.zeros(pen.shape + (G,))
                 ci, mi = np.nonzero(pen > 0)
                 if ci.size:
-                    dp = ((1 - sm[mi])[:, None, None] * Jh[cb[ci]] +
-                          sm[mi][:, None, None] * Jt[cb[ci]])
+                    dp = ((1 - sm[mi])[:, None, None] * J0[cc[ci]] +
+                          sm[mi][:, None, None] * J1[cc[ci]])
                     jac[ci, mi] = -np.einsum("kd,kdg->kg", gd[ci, mi], dp)
                 rs.append(c * pen.ravel())
                 js.append(c * jac.reshape(-1, G))
