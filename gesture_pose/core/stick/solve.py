@@ -45,6 +45,8 @@ HOPELESS_RATIO = 10.0
 HOPELESS_MARGIN = 0.05
 #: Suggestions differ by at least one joint this far apart, as a fraction of the height.
 DISTINCT = 0.04
+#: Half-width of the root's box (fraction of the height) with neither seat nor pins.
+FREE_ROOT_RANGE = 0.15
 #: Distinct individuals of the genetic search refined before their depth flips are tried.
 GA_SEEDS = 4
 #: Refined individuals whose depth flips are tried.
@@ -101,8 +103,8 @@ class StickInput:
     use_contact: bool = False
     ga: GAConfig = field(default_factory=GAConfig)
     weights: Weights = field(default_factory=Weights)
-    refine_iterations: int = 20
-    polish_evaluations: int = 30
+    refine_iterations: int = 10
+    polish_evaluations: int = 20
     rank: RankWeights = field(default_factory=RankWeights)
 
 
@@ -165,6 +167,26 @@ def _edge_lengths(figure: CharacterFigure, skeleton: Skeleton) -> np.ndarray:
     out = np.zeros(figure.n_joints)
     child = np.flatnonzero(figure.joint_parents >= 0)
     out[child] = np.linalg.norm(pos[child] - pos[figure.joint_parents[child]], axis=1)
+    return out
+
+
+def _rigid_lengths(model: PoseModel, lengths: np.ndarray, samples: int = 32) -> np.ndarray:
+    """Edge lengths ``(J,)``, infinite for edges that stretch under posing.
+
+    The pelvis-knee edge stretches (the hip joint is off the edge). An edge is rigid when
+    its length stays within 0.1 % over random poses in the genes' ranges (deterministic).
+    Only rigid edges tell the drawing's scale: foreshortening can only shorten them.
+    """
+    b = model.bounds(np.zeros(3), 0.0)
+    u = np.random.default_rng(0).random((samples, b.shape[0]))
+    heads, tails, _ = model.forward(b[:, 0] + u * (b[:, 1] - b[:, 0]))
+    joints = model.figure.joint_positions(heads, tails)
+    fig = model.figure
+    child = np.flatnonzero(fig.joint_parents >= 0)
+    d = np.linalg.norm(joints[:, child] - joints[:, fig.joint_parents[child]], axis=-1)
+    out = np.full(fig.n_joints, np.inf)
+    rigid = np.ptp(d, axis=0) <= 1e-3 * np.maximum(lengths[child], 1e-9)
+    out[child[rigid]] = lengths[child[rigid]]
     return out
 
 
@@ -299,7 +321,9 @@ def _solve(inp: StickInput) -> StickResult:
     seat_pixel = stick.points[pelvis_j]
     if inp.use_contact and len(stick.contacts):
         seat_pixel = stick.contacts[0]
-    ppu = drawing_scale(stick, lengths)
+    rigid = _rigid_lengths(model, lengths)
+    drawn = stick.drawn_edges()[:, 1]
+    ppu = drawing_scale(stick, rigid if np.isfinite(rigid[drawn]).any() else lengths)
     depth_guess = _depth_for_scale(cam, ppu, stick.points[pelvis_j])
     root_range = 0.3 * height
     grid = None
@@ -317,6 +341,10 @@ def _solve(inp: StickInput) -> StickResult:
         depth = depth_guess
         if env_pins:
             depth = float(np.mean(cam.depth(np.array([p.target for p in env_pins]))))
+        else:
+            # Nothing else fixes the depth (a nearer figure with more foreshortened limbs
+            # reprojects as well): keep the root near the drawing's scale.
+            root_range = FREE_ROOT_RANGE * height
         root = cam.unproject_at_depth(stick.points[pelvis_j][None], depth)[0]
         if env is not None and len(env.triangles) and np.linalg.norm(root - probe) > 0.3:
             grid = distance_grid(env, root, 0.75 * height)
