@@ -177,9 +177,12 @@ class GESTUREPOSE_OT_pose_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
             end()
         for warning in (*rep.embedding.warnings, *rep.result.warnings):
             self.report({"WARNING"}, warning)
+        orders = len(rep.result.ordering)
         report_result(self, f"Posed {len(rep.written)} bones in {rep.seconds:.2f} s "
                             f"(fit {rep.timings['fit']:.2f} s, 3D {rep.timings['solve3d']:.2f}"
-                            f" s); drawing coverage {100 * rep.embedding.coverage:.0f}%")
+                            f" s); drawing coverage {100 * rep.embedding.coverage:.0f}%, "
+                            f"{orders} depth order{'' if orders == 1 else 's'} read from "
+                            "overlapping parts")
         return {"FINISHED"}
 
 
