@@ -316,9 +316,13 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
         warnings.append(f"{n_bad} pairs of body parts claim the same contour.")
     limbs = symmetric_limbs(problem)
     options = []
+    # Symmetric permutations compete on the paper's energy: the direction prior (our
+    # addition) is measured against the bind pose's left/right layout, the very thing the
+    # twist score decides.
+    plain = replace(base, params=replace(base.params, w_direction=0.0))
     for mask in range(2 ** len(limbs)):
         perm = permute(conf, limbs, mask)
-        e = joint_energy(base, perm)[0]
+        e = joint_energy(plain, perm)[0]
         options.append((e, twist_score(problem, perm.positions, reference), mask, perm))
     e_min = min(o[0] for o in options)
     close = [o for o in options if o[0] <= e_min + params.symmetric_tolerance]
