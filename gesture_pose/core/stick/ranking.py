@@ -35,9 +35,11 @@ class RankWeights:
 
     Attributes:
         foreshortening: Weight of ``F`` (dimensionless, squared length fractions).
+        balance: Extra weight of the balance term (Eqs. 7-8) on top of the energy's.
     """
 
     foreshortening: float = 0.05
+    balance: float = 5.0
 
 
 def foreshortening(objective: StickObjective, joints: np.ndarray) -> np.ndarray:
@@ -89,5 +91,5 @@ def plausibility(objective: StickObjective, genes: np.ndarray,
     heads, tails, _ = objective.model.forward(x)
     energy, terms = objective.evaluate(x, collision)
     f = foreshortening(objective, objective.model.figure.joint_positions(heads, tails))
-    return energy + weights.foreshortening * f, {**terms, "energy": energy,
-                                                 "foreshortening": f}
+    score = energy + weights.foreshortening * f + weights.balance * terms["balance"]
+    return score, {**terms, "energy": energy, "foreshortening": f}

@@ -100,7 +100,7 @@ def refine_least_squares(objective: StickObjective, x0: np.ndarray, bounds: np.n
         return both(x)[1]
 
     res = least_squares(fun, np.clip(x0, lo, hi), jac=jac, bounds=(lo, hi), method="trf",
-                        max_nfev=max_iterations, xtol=1e-10, ftol=1e-10, gtol=1e-10)
+                        max_nfev=max_iterations, xtol=1e-8, ftol=1e-6, gtol=1e-8)
     energy = float(np.sum(res.fun**2))
     return RefineResult(res.x, energy, count[1], count[0], time.perf_counter() - t0,
                         str(res.message))

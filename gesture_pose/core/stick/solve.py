@@ -15,6 +15,7 @@ Deterministic for a given seed.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -48,13 +49,15 @@ DISTINCT = 0.04
 #: Half-width of the root's box (fraction of the height) with neither seat nor pins.
 FREE_ROOT_RANGE = 0.15
 #: Distinct individuals of the genetic search refined before their depth flips are tried.
-GA_SEEDS = 4
+GA_SEEDS = 3
 #: Refined individuals whose depth flips are tried.
 FLIPPED_SEEDS = 2
+#: Depth interpretations whose collisions are checked (the most plausible without them).
+SCREENED = 64
 #: Candidates refined beyond the number of suggestions.
 EXTRA_CANDIDATES = 3
 #: Residual evaluations of the short (Gauss-Newton) refinement of each candidate.
-SHORT_EVALUATIONS = 15
+SHORT_EVALUATIONS = 10
 
 
 @dataclass(frozen=True)
@@ -331,9 +334,12 @@ def _solve(inp: StickInput) -> StickResult:
         o, d = cam.rays(seat_pixel[None])
         probe = cam.unproject_at_depth(stick.points[pelvis_j][None], depth_guess)[0]
         dist = float(np.linalg.norm(probe - o[0]))
-        grid = distance_grid(env, probe, 0.75 * height)
-        seat = find_seat(env, o[0], d[0], knee_h, hip_r, grid, near=0.5 * dist,
-                         far=1.6 * dist)
+        # The distance grid (for a collision-free spot on the seat) only once a seat is
+        # found: standing or lying, it is built around the root instead.
+        if find_seat(env, o[0], d[0], knee_h, hip_r, None, near=0.5 * dist, far=1.6 * dist):
+            grid = distance_grid(env, probe, 0.75 * height)
+            seat = find_seat(env, o[0], d[0], knee_h, hip_r, grid, near=0.5 * dist,
+                             far=1.6 * dist)
     if seat is not None:
         root = seat.point + up * hip_r
         root_range = 0.12 * height
@@ -346,7 +352,7 @@ def _solve(inp: StickInput) -> StickResult:
             # reprojects as well): keep the root near the drawing's scale.
             root_range = FREE_ROOT_RANGE * height
         root = cam.unproject_at_depth(stick.points[pelvis_j][None], depth)[0]
-        if env is not None and len(env.triangles) and np.linalg.norm(root - probe) > 0.3:
+        if env is not None and len(env.triangles):
             grid = distance_grid(env, root, 0.75 * height)
     ppu_root = cam.pixels_per_unit(float(cam.depth(root[None])[0]))
     stick, factor = normalize_figure(stick, lengths, ppu_root, pelvis_j)
@@ -365,6 +371,11 @@ def _solve(inp: StickInput) -> StickResult:
             env_caps &= ~np.isin(caps.bones, after)
     # Seated, the hips rest on the seat's plane (Eq. 10 on the pelvis; free to slide).
     seat_pin = () if seat is None else (EnvPin(pelvis_j, root, up.copy()),)
+    # A body whose pelvis the user pinned to a surface lies or rests on it: its balance
+    # over the pinned contacts does not rank its interpretations.
+    rank = inp.rank
+    if any(p.joint == pelvis_j for p in env_pins):
+        rank = dataclasses.replace(rank, balance=0.0)
     objective = StickObjective(
         model=model, camera=cam, stick=stick, height=height,
         masses=bone_masses(sk, caps), capsules=caps, env_capsules=env_caps, grid=grid,
@@ -392,40 +403,45 @@ def _solve(inp: StickInput) -> StickResult:
     tops = np.argsort([r.energy for r in first], kind="stable")[:FLIPPED_SEEDS]
     pool = np.concatenate([[r.x for r in first]] +
                           [depth_flips(model, first[i].x, bounds, stick, cam) for i in tops])
-    score, _ = plausibility(objective, pool, inp.rank)
+    # Collisions (the costly term) only for the most plausible without them.
+    cheap, _ = plausibility(objective, pool, rank, collision=False)
+    screened = np.argsort(cheap, kind="stable")[:SCREENED]
+    pool = pool[screened]
+    score, _ = plausibility(objective, pool, rank)
     heads, tails, _ = model.forward(pool)
     joints = figure.joint_positions(heads, tails)
     picks = _distinct(joints, np.argsort(score, kind="stable"),
                       inp.n_suggestions + EXTRA_CANDIDATES, DISTINCT * height)
-    second = [first[i] if i < len(first) else _refine_short(objective, pool[i], bounds)
-              for i in picks]
+    # The refined seeds (the pool's first rows) are not refined again.
+    second = [first[screened[i]] if screened[i] < len(first) else
+              _refine_short(objective, pool[i], bounds) for i in picks]
     xs = np.array([r.x for r in second])
-    score, _ = plausibility(objective, xs, inp.rank)
+    score, _ = plausibility(objective, xs, rank)
     order = np.argsort(score, kind="stable")
     heads, tails, _ = model.forward(xs[order])
     joints = figure.joint_positions(heads, tails)
     best = [order[k] for k in _distinct(joints, np.arange(len(order)), inp.n_suggestions,
                                          DISTINCT * height)]
-    # A candidate far above the best after the short refinement (a limb through the
-    # body or the seat) stays an alternative as it is: its long refinement is skipped.
+    # The long refinement (quasi-Newton, then Gauss-Newton) of each suggestion; a
+    # candidate far above the best (a limb through the body or the seat) stays an
+    # alternative as it is.
     s_best = min(score[i] for i in best)
-    refined = [_refine_long(objective, second[i].x, bounds, inp)
-               if score[i] <= HOPELESS_RATIO * s_best + HOPELESS_MARGIN else second[i]
-               for i in best]
+    refined = [second[i] if score[i] > HOPELESS_RATIO * s_best + HOPELESS_MARGIN else
+               _refine_long(objective, second[i].x, bounds, inp) for i in best]
     timings["refine"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     # Ranked by the refined poses' plausibility: enforcing the pins afterwards spreads
     # the targets' own errors (an ankle lying lower than standing) over every suggestion.
     xs = np.array([r.x for r in refined])
-    score, _ = plausibility(objective, xs, inp.rank)
+    score, _ = plausibility(objective, xs, rank)
     order = np.argsort(score, kind="stable")
     heads, tails, _ = model.forward(xs[order])
     joints = figure.joint_positions(heads, tails)
     keep = order[_distinct(joints, np.arange(len(xs)), inp.n_suggestions, DISTINCT * height)]
     suggestions = [_suggestion(objective, finish_pose(objective, xs[i], bounds, env_pins,
                                                       limb_pins), env_pins, float(score[i]),
-                               inp.rank)
+                               rank)
                    for i in keep]
     if not suggestions or not np.isfinite(suggestions[0].energy):
         raise SolverError("The stick figure solver found no finite solution.",
