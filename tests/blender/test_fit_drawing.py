@@ -40,29 +40,52 @@ def _trace(arm, target="Traced Contours", **kwargs):
     return bpy.data.objects[target]
 
 
-# Measured on these clean traced drawings (bench machine): step median 2.0% / mean 3.7%,
-# reach median 1.4% / mean 4.2% of the figure's height; 68-76% of the joints within 4% (the
-# issue's target, every joint within 4%, is not met). The limits leave a margin for
-# platform noise only.
-@pytest.mark.parametrize("pose_name,median_limit,mean_limit", [
-    ("step", 3.5, 5.5),
-    ("reach", 2.5, 6.0),
+# The issue's check is every joint within 4% of the figure's projected height on clean traced
+# contours. Measured on these drawings (this camera, framed on the rest pose; bench machine):
+#
+#   pose            median  mean  max   joints within 4%
+#   step            1.2     1.9   5.9   88%
+#   rest            1.9     2.2   4.7   92%
+#   raise_left_arm  1.2     3.5   31    92%  (the raised forearm and hand folded back)
+#   reach           0.9     10    39    68%  (both arms reversed: shoulders at the hands)
+#
+# so the check is not met (see test_every_joint_within_4_percent, an expected failure). The
+# limits below are those measurements plus a margin for platform noise only: the median
+# error, and the share of joints the issue's 4% already holds for.
+@pytest.mark.parametrize("pose_name,median_limit,within_limit", [
+    ("step", 2.0, 0.85),
+    ("rest", 2.5, 0.88),
+    ("raise_left_arm", 2.0, 0.88),
+    ("reach", 1.5, 0.64),
 ])
 def test_fit_finds_the_joints_of_traced_poses(registered, pose_name, median_limit,
-                                              mean_limit):
+                                              within_limit):
+    emb, err, n_strokes = _fit_traced(pose_name)
+    assert n_strokes > 10
+    names = emb.solving.joint_bones
+    assert np.median(err) < median_limit, dict(zip(names, err.round(1), strict=True))
+    assert np.mean(err <= 4.0) >= within_limit, dict(zip(names, err.round(1), strict=True))
+    assert 0.5 < emb.coverage <= 1.0
+    assert emb.timings["total"] < 20.0
+
+
+def _fit_traced(pose_name: str):
+    """Fit the clean traced contours of a pose; ``(embedding, errors %h, strokes)``."""
     arm, cam = _humanoid()
     builders.pose_humanoid(arm, pose_name)
     bpy.context.view_layer.update()
     sketch = _trace(arm)
     camera = camera_from_object(cam, bpy.context.scene)
     emb, n_strokes = op.fit_scene_drawing(arm, sketch, camera)
-    err = _errors(arm, emb, camera)
-    assert n_strokes > 10
-    names = emb.solving.joint_bones
-    assert np.median(err) < median_limit, dict(zip(names, err.round(1), strict=True))
-    assert err.mean() < mean_limit
-    assert 0.5 < emb.coverage <= 1.0
-    assert emb.timings["total"] < 20.0
+    return emb, _errors(arm, emb, camera), n_strokes
+
+
+@pytest.mark.xfail(strict=True, reason="issue 3's accuracy target is not met yet: the worst "
+                   "joint is 4.7-39% of the height off (see the table above)")
+@pytest.mark.parametrize("pose_name", ["step", "rest"])
+def test_every_joint_within_4_percent(registered, pose_name):
+    emb, err, _ = _fit_traced(pose_name)
+    assert err.max() <= 4.0, dict(zip(emb.solving.joint_bones, err.round(1), strict=True))
 
 
 def test_fit_operator_writes_only_its_overlay_layer(registered):
