@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gesture_pose.core.gesture.costs import CostParams, crossing_stations, pair_cost
+from gesture_pose.core.gesture.costs import CostParams, crossing_stations, pair_cost, rigid_cost
 from gesture_pose.core.gesture.preprocess import preprocess
 from gesture_pose.core.stroke import Stroke
 
@@ -64,3 +64,36 @@ def test_crossing_stations_stay_between_the_joint_circles():
     # A bone shorter than its circles is probed at its middle only.
     short = crossing_stations(np.array([[30.0]]), np.array([20.0]), np.array([20.0]), 10.0)
     np.testing.assert_allclose(short, 0.5)
+
+
+def test_rigid_offsets_in_the_view_or_by_length_only():
+    d = preprocess(_limb(None))
+    pa = np.array([[200.0, 300.0]])
+    offset = np.array([30.0, 0.0])
+    turned = pa + [[0.0, 30.0]]  # the offset's length, turned by 90 degrees
+    view = CostParams()
+    paper = CostParams(view_offsets=False)
+    # Our prior compares the 2D layout: the turned offset costs, the bind one does not.
+    assert rigid_cost(d, pa, pa + offset, offset, view)[0, 0] < 1e-9
+    assert rigid_cost(d, pa, turned, offset, view)[0, 0] > 0.5
+    # The paper's length term sees only the length (here the bind length of the offset).
+    assert rigid_cost(d, pa, turned, offset, paper, 30.0)[0, 0] < 1e-9
+    assert rigid_cost(d, pa, pa + [[60.0, 0.0]], offset, paper, 30.0)[0, 0] > 0.5
+
+
+def test_naturalness_reference_angle_from_the_view_or_the_rest_pose():
+    from gesture_pose.core.gesture.mrf import make_problem
+    from gesture_pose.core.gesture.solving import solving_skeleton
+
+    from .fixtures import chain_skeleton
+
+    # A chain bent by 90 degrees at rest, seen in a view that shows it straight.
+    rest = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 1.0]])
+    solving = solving_skeleton(chain_skeleton(rest), min_bone_epsilons=0.0)
+    seen = np.array([[100.0, 300.0], [200.0, 300.0], [300.0, 300.0]])
+    d = preprocess(_limb(None))
+    tail = solving.joint_bones.index("b1 tail")
+    in_view = make_problem(d, solving, 100.0, seen, CostParams())
+    at_rest = make_problem(d, solving, 100.0, seen, CostParams(view_angles=False))
+    assert in_view.rest_angle[tail] < 1e-6
+    np.testing.assert_allclose(at_rest.rest_angle[tail], np.pi / 2)

@@ -41,7 +41,13 @@ class CostParams:
         conform_angle: Largest angle between a conforming contour sample and its bone.
         rigid_sigma: Sigma of rigid offsets (unconnected heads), fraction of the diagonal.
         w_direction: Weight of the direction prior (see :func:`direction_cost`); not in the
-            paper.
+            paper (0 gives the paper's energy).
+        view_offsets: Compare rigid offsets (hips, shoulders) as 2D vectors with the bind
+            pose seen in the view (not in the paper); False compares only their length,
+            with the length term ``Cl``.
+        view_angles: Measure the naturalness ``Cn`` against the angle between the bones in
+            the bind pose seen in the view (not in the paper); False uses their 3D angle in
+            the bind pose.
     """
 
     alpha: float = np.radians(15.0)
@@ -54,6 +60,8 @@ class CostParams:
     conform_angle: float = np.radians(30.0)
     rigid_sigma: float = 0.03
     w_direction: float = 0.75
+    view_offsets: bool = True
+    view_angles: bool = True
 
 
 def circle_alignment(drawing: Drawing, centres: np.ndarray, radii: np.ndarray,
@@ -257,11 +265,13 @@ def bone_frame(drawing: Drawing, pa: np.ndarray, pb: np.ndarray, idx: np.ndarray
 
 
 def rigid_cost(drawing: Drawing, pa: np.ndarray, pb: np.ndarray, offset: np.ndarray,
-               params: CostParams | None = None) -> np.ndarray:
+               params: CostParams | None = None, length: float | None = None) -> np.ndarray:
     """Cost of a rigid offset link (an unconnected head such as a hip), ``(Ka, Kb)``.
 
-    The drawn offset ``pb - pa`` is compared with the offset seen in the view at the
-    character's current pose (a 2D rigid prior: hips and shoulders keep their layout).
+    With ``view_offsets`` (our addition) the drawn offset ``pb - pa`` is compared with the
+    offset seen in the view at the character's current pose (a 2D rigid prior: hips and
+    shoulders keep their layout); otherwise only its length is, with the length term
+    ``Cl`` (Eq. 2) at ``length``.
 
     Args:
         drawing: The preprocessed drawing.
@@ -269,8 +279,14 @@ def rigid_cost(drawing: Drawing, pa: np.ndarray, pb: np.ndarray, offset: np.ndar
         pb: Joint positions, pixels, ``(Kb, 2)``.
         offset: Expected offset, pixels, ``(2,)``.
         params: Cost parameters.
+        length: Expected length of the offset, pixels (default: that of ``offset``).
     """
     params = params or CostParams()
+    if not params.view_offsets:
+        dist = np.linalg.norm(np.asarray(pb, float)[None] - np.asarray(pa, float)[:, None],
+                              axis=2)
+        length = float(np.linalg.norm(offset)) if length is None else length
+        return length_cost(dist, length, params.sigma_length * drawing.diagonal)
     diff = np.asarray(pb, float)[None] - np.asarray(pa, float)[:, None] - offset
     sigma = params.rigid_sigma * drawing.diagonal
     return 1.0 - np.exp(-np.einsum("abd,abd->ab", diff, diff) / (2.0 * sigma**2))

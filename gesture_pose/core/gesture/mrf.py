@@ -146,7 +146,8 @@ class MatchProblem:
         link_length: Expected drawn length of each joint's link to its parent (bone length
             or rigid offset times the view scale), pixels, ``(J,)``; 0 for roots.
         rest_angle: Angle between a joint's link and its parent's link in the view at the
-            current pose, radians, ``(J,)``; NaN where there is no triplet.
+            current pose (in 3D at rest without ``view_angles``), radians, ``(J,)``; NaN
+            where there is no triplet.
         terminal: Terminal joints, ``(J,)`` bool.
         params: Cost parameters.
         link_offset: Offset of each joint from its parent in the view at the current pose,
@@ -200,7 +201,8 @@ def make_problem(drawing: Drawing, solving: SolvingSkeleton, pixels_per_unit: fl
     for j in np.flatnonzero(has):
         p = par[j]
         if solving.joint_link_bone[j] >= 0 and par[p] >= 0 and solving.joint_link_bone[p] >= 0:
-            d1, d2 = reference[p] - reference[par[p]], reference[j] - reference[p]
+            frame = reference if params.view_angles else rest
+            d1, d2 = frame[p] - frame[par[p]], frame[j] - frame[p]
             c = d1 @ d2 / max(np.linalg.norm(d1) * np.linalg.norm(d2), 1e-12)
             angle[j] = float(np.arccos(np.clip(c, -1.0, 1.0)))
     offset = np.zeros((n, 2))
@@ -214,7 +216,7 @@ def link_table(problem: MatchProblem, j: int, a: JointCandidates,
     """Pairwise table between parent candidates ``a`` and joint ``j``'s candidates ``b``."""
     if problem.solving.joint_link_bone[j] < 0:
         return rigid_cost(problem.drawing, a.positions, b.positions, problem.link_offset[j],
-                          problem.params)
+                          problem.params, problem.link_length[j])
     prior = direction_cost(a.positions, b.positions, problem.link_offset[j], problem.params)
     return prior + pair_cost(problem.drawing, a.positions, a.radii, a.group, a.side,
                              b.positions, b.radii, b.group, b.side, problem.link_length[j],

@@ -65,7 +65,8 @@ def _factor_energy(problem: MatchProblem, conf: JointCandidates, j: int,
 
     def link(child: int, pa, ra, ga, sa, pb, rb, gb, sb) -> np.ndarray:
         if s.joint_link_bone[child] < 0:
-            return rigid_cost(d, pa, pb, problem.link_offset[child], prm)
+            return rigid_cost(d, pa, pb, problem.link_offset[child], prm,
+                              problem.link_length[child])
         prior = direction_cost(pa, pb, problem.link_offset[child], prm)
         return prior + pair_cost(d, pa, ra, ga, sa, pb, rb, gb, sb, problem.link_length[child],
                                  prm, blocked=problem.bone_blocked(child))
