@@ -53,23 +53,8 @@ def foreshortening(objective: StickObjective, joints: np.ndarray) -> np.ndarray:
         ``F`` per individual, shape ``(P,)``: the sum over drawn edges of
         ``((l_proj - min(l_drawn, l_full)) / l_full)^2``.
     """
-    cam, stick = objective.camera, objective.stick
-    e = stick.drawn_edges()
-    a, b = joints[:, e[:, 0]], joints[:, e[:, 1]]
-    q, _ = project_jacobian(cam, np.concatenate([a, b], 1), jacobian=False)
-    n = e.shape[0]
-    proj = np.linalg.norm(q[:, n:] - q[:, :n], axis=-1)
-    drawn = np.linalg.norm(stick.points[e[:, 1]] - stick.points[e[:, 0]], axis=-1)
-    length = np.linalg.norm(b - a, axis=-1)
-    mid = 0.5 * (a + b)
-    # The whole edge's projection in the view plane at its depth: a segment of the same
-    # length across the view direction through the midpoint.
-    across = cam.view_matrix[0, :3]  # the view's right axis (unit)
-    ends = np.stack([mid - 0.5 * length[..., None] * across,
-                     mid + 0.5 * length[..., None] * across], 2)
-    qe, _ = project_jacobian(cam, ends, jacobian=False)
-    full = np.maximum(np.linalg.norm(qe[..., 1, :] - qe[..., 0, :], axis=-1), 1e-9)
-    return np.sum(((proj - np.minimum(drawn, full)) / full) ** 2, axis=-1)
+    q, _ = project_jacobian(objective.camera, joints, jacobian=False)
+    return np.sum(objective.foreshortening_residuals(joints, q) ** 2, axis=-1)
 
 
 def plausibility(objective: StickObjective, genes: np.ndarray,

@@ -1,0 +1,165 @@
+"""Ranking depth interpretations: foreshortening, joint comfort and depth flips."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from gesture_pose.core.camera import Camera
+from gesture_pose.core.skeleton import Pose
+from gesture_pose.core.stick.capsules import bone_masses, capsules_from_mesh
+from gesture_pose.core.stick.figure import humanoid_figure
+from gesture_pose.core.stick.genetic import GAConfig
+from gesture_pose.core.stick.graph import StickFigure
+from gesture_pose.core.stick.kinematics import PoseModel
+from gesture_pose.core.stick.lifting import depth_flips
+from gesture_pose.core.stick.objective import StickObjective, Weights
+from gesture_pose.core.stick.ranking import foreshortening, plausibility
+from gesture_pose.core.stick.solve import StickInput, solve_stick
+from tests.core.test_stick_figure import humanoid_skeleton
+
+CAMERA = Camera.look_at([0.0, -4.5, 1.0], [0.0, 0.0, 1.0], width=1000, height=800)
+
+
+def _pose(model: PoseModel, degrees: dict[str, list[float]]) -> np.ndarray:
+    """Gene vector with the named groups' genes set (degrees), the rest at rest."""
+    x = np.zeros(model.n_genes)
+    start = 6
+    for g in model.figure.groups:
+        m = g.bounds.shape[0]
+        if g.name in degrees:
+            x[start:start + m] = np.radians(degrees[g.name])
+        start += m
+    return x
+
+
+def _drawn(model: PoseModel, x: np.ndarray) -> tuple[StickFigure, np.ndarray]:
+    """The stick figure of a pose seen by CAMERA (hands and feet left out) and its joints."""
+    fig = model.figure
+    heads, tails, _ = model.forward(x[None])
+    joints = fig.joint_positions(heads, tails)[0]
+    pts = CAMERA.project(joints)
+    present = ~fig.optional
+    pts[~present] = np.nan
+    return StickFigure(fig.joint_names, pts, present, fig.joint_parents,
+                       np.zeros((0, 2))), joints
+
+
+def _objective(model: PoseModel, stick: StickFigure) -> StickObjective:
+    caps = capsules_from_mesh(model.skeleton)
+    return StickObjective(model=model, camera=CAMERA, stick=stick, height=1.8,
+                          masses=bone_masses(model.skeleton, caps), capsules=caps,
+                          env_capsules=np.zeros(len(caps.bones), bool))
+
+
+def _model() -> PoseModel:
+    sk = humanoid_skeleton()
+    return PoseModel(sk, humanoid_figure(sk), Pose.identity(sk.n_bones))
+
+
+def _out_of_plane(joints: np.ndarray, a: int, b: int) -> float:
+    """Angle (degrees) between the edge a-b and the view plane at its midpoint."""
+    v = joints[b] - joints[a]
+    ray = 0.5 * (joints[a] + joints[b]) - CAMERA.location
+    return float(np.degrees(np.arcsin(abs(v @ ray) / np.linalg.norm(v) /
+                                      np.linalg.norm(ray))))
+
+
+def test_foreshortening_is_zero_for_the_drawn_pose_and_grows_out_of_the_view_plane():
+    model = _model()
+    fig = model.figure
+    _, joints = _drawn(model, _pose(model, {"upper_arm.L": [0, 0, 60], "forearm.L": [40]}))
+    # Lay the left forearm in the view plane (drawn at full length), then turn it out of
+    # the plane about the elbow keeping its drawn direction: the projection shortens by
+    # cos(angle), which the drawing does not show.
+    e, w = fig.joint("elbow.L"), fig.joint("wrist.L")
+    ray = joints[e] - CAMERA.location
+    ray /= np.linalg.norm(ray)
+    v = joints[w] - joints[e]
+    across = v - ray * (v @ ray)
+    across /= np.linalg.norm(across)
+    poses = []
+    for deg in (0.0, 20.0, 40.0):
+        t = np.radians(deg)
+        moved = joints.copy()
+        moved[w] = joints[e] + np.linalg.norm(v) * (np.cos(t) * across - np.sin(t) * ray)
+        poses.append(moved)
+    pts = CAMERA.project(poses[0])
+    present = ~fig.optional
+    pts[~present] = np.nan
+    stick = StickFigure(fig.joint_names, pts, present, fig.joint_parents, np.zeros((0, 2)))
+    out = foreshortening(_objective(model, stick), np.array(poses))
+    assert out[0] < 1e-3 < out[1] < out[2]
+    # About (1 - cos 40 deg)^2 for the forearm (it also comes nearer the eye).
+    assert 0.5 < out[2] / (1 - np.cos(np.radians(40.0))) ** 2 < 1.5
+
+
+def test_limb_drawn_at_full_length_comes_out_in_the_view_plane_with_foreshortening_on():
+    # By default the foreshortening term only ranks the suggestions; with the default
+    # weights this forearm comes out 16 degrees off the plane (the comfort term prefers
+    # a less twisted upper arm). Weighted into refinement, it holds the drawn length.
+    model = _model()
+    fig = model.figure
+    # The left arm twisted so that the elbow bends across the view: both of its bones
+    # lie in the view plane and are drawn at full length.
+    x = _pose(model, {"upper_arm.L": [10, -80, 0], "forearm.L": [30]})
+    stick, truth = _drawn(model, x)
+    e, w, n = fig.joint("elbow.L"), fig.joint("wrist.L"), fig.joint("neck")
+    assert _out_of_plane(truth, n, e) < 2.0 and _out_of_plane(truth, e, w) < 2.0
+    res = solve_stick(StickInput(model.skeleton, CAMERA, stick=stick, seed=1,
+                                 n_suggestions=2,
+                                 ga=GAConfig(population=256, max_generations=6),
+                                 weights=Weights(foreshortening=0.5)))
+    best = res.suggestions[0].joints
+    # 10 degrees out of the plane shorten a bone's projection by 1.5 % (1 pixel here).
+    assert _out_of_plane(best, n, e) < 10.0 and _out_of_plane(best, e, w) < 10.0
+    assert np.linalg.norm((best[w] - best[n]) - (truth[w] - truth[n])) < 0.05
+
+
+def test_depth_flip_against_the_joint_limits_ranks_below_the_drawn_pose():
+    model = _model()
+    fig = model.figure
+    # Forearm bent forward towards the viewer: its depth flip needs the elbow bent
+    # backwards, beyond the hinge's range (or the upper arm twisted far from rest).
+    x = _pose(model, {"upper_arm.L": [40, 0, 20], "forearm.L": [70]})
+    stick, truth = _drawn(model, x)
+    obj = _objective(model, stick)
+    bounds = model.bounds(np.zeros(3), 0.3)
+    flips = depth_flips(model, x, bounds, stick, CAMERA)
+    assert len(flips) == 2 ** 8  # near or far end of the eight limb bones
+    heads, tails, _ = model.forward(flips)
+    joints = fig.joint_positions(heads, tails)
+    score, terms = plausibility(obj, flips)
+    drawn = int(np.argmin(np.linalg.norm(joints - truth, axis=-1).max(1)))
+    assert np.abs(joints[drawn] - truth).max() < 1e-3  # the drawn pose is one of them
+    assert np.argmin(score) == drawn
+    # Flip the left forearm alone (bit 1: the lifted groups are upper arm, forearm,
+    # thigh, shin per side): its hinge cannot bend the other way, so the flip either
+    # leaves the drawing or twists the upper arm out of comfort.
+    flip = drawn ^ 2
+    w = fig.joint("wrist.L")
+    assert np.linalg.norm(joints[flip, w] - truth[w]) > 0.1
+    assert score[flip] > score[drawn] + 1e-3
+    assert (terms["projection"][flip] > terms["projection"][drawn] + 1e-3 or
+            terms["comfort"][flip] > terms["comfort"][drawn] + 0.1)
+
+
+def test_foreshortening_term_in_the_objective_matches_finite_differences():
+    from tests.core.test_stick_objective import problem
+    rng = np.random.default_rng(7)
+    obj, truth = problem(rng, with_grid=False)
+    obj = dataclasses.replace(obj, weights=Weights(foreshortening=0.5))
+    x = truth + rng.normal(scale=0.2, size=truth.size)
+    f, g = obj.value_and_grad(x)
+    e, terms = obj.evaluate(x[None])
+    assert np.isclose(f, e[0]) and terms["foreshortening"][0] > 0
+    assert np.isclose(np.sum(obj.residuals(x[None]) ** 2), f, rtol=1e-12)
+    h = 1e-6
+    X = np.concatenate([x + h * np.eye(x.size), x - h * np.eye(x.size)])
+    E, _ = obj.evaluate(X)
+    assert np.allclose((E[:x.size] - E[x.size:]) / (2 * h), g, rtol=1e-4, atol=1e-6)
+    r, J = obj.residuals_and_jacobian(x)
+    num = ((obj.residuals(x + h * np.eye(x.size)) - obj.residuals(x - h * np.eye(x.size)))
+           / (2 * h)).T
+    assert np.allclose(num, J, rtol=1e-4, atol=1e-5)
