@@ -259,3 +259,29 @@ def test_left_side_names():
     assert [start._is_left(n) for n in ("upper_arm.L", "hip_l", "Arm-L", "mixamorig:LeftArm",
                                         "upper_arm.R", "Right_Foot_Ball", "spine")] == \
         [True, True, True, True, False, False, False]
+
+
+def test_a_link_drawn_longer_than_it_can_be_weighs_little():
+    sk = tree_skeleton()
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=True)
+    truth = Pose(exp_map(np.random.default_rng(3).normal(scale=0.15, size=(6, 3))),
+                 np.zeros((6, 3)))
+    emb = project_embedding(sk, s, truth, cam, 0.05)
+    # The 2D fit put the left arm's head (0.1 from the neck's base, a rigid offset) 0.4
+    # off, up the image: that link is drawn more than 3 times its length.
+    k = s.head_joint[2]
+    joints = emb.joints2d.copy()
+    joints[k, 1] += 0.4 * view_frame(cam, s.rest_joints.mean(axis=0)).scale
+    bad = Embedding2D(s, joints, emb.joint_visible, emb.joint_radius, emb.bone_segments,
+                      emb.bone_segment_sides, emb.occlusions, (), (), 1.0, 0.0)
+    tj = joints_of(s, sk, truth)
+    others = np.setdiff1d(np.arange(s.n_joints), [k])
+
+    def error(drawing: Embedding2D, opts: DepthOptions) -> float:
+        X = solve_pose3d(sk, drawing, cam, options=opts).joints3d
+        return float(np.linalg.norm((X - X[0] + tj[0] - tj)[others], axis=1).mean())
+
+    clean = error(emb, DepthOptions())  # the depth the exact drawing leaves open
+    assert error(bad, DepthOptions()) < clean + 0.02
+    assert error(bad, DepthOptions(max_drawn_ratio=np.inf)) > 2.0 * clean
