@@ -149,11 +149,14 @@ def toggle_swap(scene: bpy.types.Scene, pair: str) -> set[str]:
 
 
 def store_suggestions(scene: bpy.types.Scene, armature: str, names: tuple[str, ...],
-                      poses: list[Pose], energies: list[float], frame: int) -> None:
-    """Keep the suggestions of the last solve (local rotations and translations)."""
+                      poses: list[Pose], scores: list[float], frame: int) -> None:
+    """Keep the suggestions of the last solve: local rotations, translations, scores.
+
+    The scores are the suggestions' plausibility (the order they are stepped through).
+    """
     scene[SUGGESTIONS_PROPERTY] = json.dumps({
         "armature": armature, "names": list(names), "frame": int(frame), "current": 0,
-        "energies": [float(e) for e in energies],
+        "scores": [float(e) for e in scores],
         "rotations": [np.asarray(p.rotations).round(10).tolist() for p in poses],
         "translations": [np.asarray(p.translations).round(10).tolist() for p in poses]})
 
@@ -259,7 +262,7 @@ def solve_scene(context, op, arm_obj, sketch_obj) -> tuple[StickResult, list[str
                          frame=scene.frame_current, location_bones=[st.figure.root_bone])
     store_suggestions(scene, arm_obj.name, data.skeleton.names,
                       [s.pose for s in result.suggestions],
-                      [s.energy for s in result.suggestions], scene.frame_current)
+                      [s.score for s in result.suggestions], scene.frame_current)
     return result, written
 
 

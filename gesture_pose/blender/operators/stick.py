@@ -157,8 +157,9 @@ class GESTUREPOSE_OT_next_suggestion(GesturePoseOperatorMixin, bpy.types.Operato
                              frame=context.scene.frame_current,
                              location_bones=[figure.root_bone])
         set_current_suggestion(context.scene, k)
-        report_result(self, f"Suggestion {k + 1} of {n} (energy "
-                            f"{stored['energies'][k]:.4f}); {len(written)} bones changed")
+        scores = stored.get("scores", stored.get("energies", [float("nan")] * n))
+        report_result(self, f"Suggestion {k + 1} of {n} (score {scores[k]:.4f}); "
+                            f"{len(written)} bones changed")
         return {"FINISHED"}
 
 

@@ -25,7 +25,7 @@ from ..camera import Camera
 from ..exceptions import SolverError
 from ..rotations import exp_map, log_map, normalize, rotation_between
 from ..skeleton import Pose, Skeleton
-from .capsules import bone_masses, capsules_from_mesh
+from .capsules import Capsules, bone_masses, capsules_from_mesh
 from .environment import Environment, Seat, distance_grid, find_seat
 from .figure import CharacterFigure, character_figure, spine_joint
 from .finish import finish_pose
@@ -173,6 +173,28 @@ def _edge_lengths(figure: CharacterFigure, skeleton: Skeleton) -> np.ndarray:
     return out
 
 
+def _moving_pairs(model: PoseModel, caps: Capsules) -> Capsules:
+    """The capsules with only the self-collision pairs whose relative pose can change.
+
+    Two capsules move relative to each other only when a bone the genes turn lies on one
+    side of the path between them (two fingers of one hand, both carried by the hand, keep
+    their rest distance: if they do not overlap at rest they never will).
+    """
+    sk = model.skeleton
+    moved = np.zeros(sk.n_bones, bool)
+    moved[model.figure.root_bone] = True
+    for grp in model.figure.groups:
+        moved[grp.bones] = True
+    turned = np.zeros((len(caps.bones), sk.n_bones), bool)
+    for k, b in enumerate(caps.bones):
+        chain = [a for a in sk.ancestors(int(b)) if moved[a]]
+        turned[k, chain] = True
+    if len(caps.pairs) == 0:
+        return caps
+    varies = np.any(turned[caps.pairs[:, 0]] != turned[caps.pairs[:, 1]], axis=1)
+    return dataclasses.replace(caps, pairs=caps.pairs[varies])
+
+
 def _rigid_lengths(model: PoseModel, lengths: np.ndarray, samples: int = 32) -> np.ndarray:
     """Edge lengths ``(J,)``, infinite for edges that stretch under posing.
 
@@ -298,7 +320,7 @@ def _solve(inp: StickInput) -> StickResult:
                         "matched by topology (one line per bone).")
     base = inp.base_pose or Pose.identity(sk.n_bones)
     model = PoseModel(sk, figure, base)
-    caps = capsules_from_mesh(sk, inp.mesh_vertices, inp.mesh_weights)
+    caps = _moving_pairs(model, capsules_from_mesh(sk, inp.mesh_vertices, inp.mesh_weights))
     offsets = pin_offsets(figure, sk, caps, inp.mesh_vertices, inp.mesh_weights)
     env_pins, limb_pins = resolve_pins(figure, stick, inp.env_pins, inp.limb_pins, offsets,
                                        cam)
