@@ -13,6 +13,8 @@ import bpy
 from ..core.exceptions import GesturePoseError, InputError
 
 SKETCH_TYPES = frozenset({"GREASEPENCIL", "CURVE"})
+#: Custom property naming the curve sketch a fit overlay object belongs to.
+FIT_OF = "gesture_pose_fit_of"
 
 
 def _settings(context):
@@ -68,7 +70,8 @@ def resolve_sketch(context, name: str | None = None,
     In order: the object called ``name`` (Grease Pencil or curve); the sketch picked in the
     Gesture Pose panel; the active object if it is Grease Pencil; the only selected Grease
     Pencil object; the only Grease Pencil object in the scene; among several, the only one
-    parented to ``armature``.
+    parented to ``armature``. The search skips the fit overlays Fit Drawing makes for
+    curve sketches (objects carrying :data:`FIT_OF`).
 
     Args:
         context: Blender context (or override).
@@ -86,14 +89,16 @@ def resolve_sketch(context, name: str | None = None,
     settings = _settings(context)
     if settings is not None and settings.sketch is not None:
         return settings.sketch
+    def drawn(obj) -> bool:
+        return obj.type == "GREASEPENCIL" and not obj.get(FIT_OF)
+
     active = getattr(context, "active_object", None)
-    if active is not None and active.type == "GREASEPENCIL":
+    if active is not None and drawn(active):
         return active
-    selected = [o for o in getattr(context, "selected_objects", ())
-                if o.type == "GREASEPENCIL"]
+    selected = [o for o in getattr(context, "selected_objects", ()) if drawn(o)]
     if len(selected) == 1:
         return selected[0]
-    found = [o for o in context.scene.objects if o.type == "GREASEPENCIL"]
+    found = [o for o in context.scene.objects if drawn(o)]
     if len(found) == 1:
         return found[0]
     if found and armature is not None:

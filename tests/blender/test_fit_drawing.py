@@ -116,18 +116,9 @@ def test_curve_sketch_from_svg_is_accepted(registered):
     builders.pose_humanoid(arm, "reach")
     bpy.context.view_layer.update()
     camera = camera_from_object(cam, bpy.context.scene)
-    traced = op.trace_character(arm, camera)
-    curve = bpy.data.curves.new("Svg", "CURVE")
-    curve.dimensions = "3D"
-    for pts in traced.world(camera):
-        spline = curve.splines.new("POLY")
-        spline.points.add(len(pts) - 1)
-        spline.points.foreach_set("co", np.c_[pts, np.ones(len(pts))].ravel())
-    obj = bpy.data.objects.new("Svg", curve)
-    bpy.context.scene.collection.objects.link(obj)
-    bpy.context.view_layer.update()
+    obj = _curve_sketch(arm, camera)
     emb, n = op.fit_scene_drawing(arm, obj, camera)
-    assert n == len(traced.pixels)
+    assert n == len(obj.data.splines) == len(op.trace_character(arm, camera).pixels)
     assert np.median(_errors(arm, emb, camera)) < 5.0
 
 
@@ -186,6 +177,14 @@ def test_curve_sketch_gets_a_fit_overlay_object(registered):
     assert sketch.type == "CURVE"
     with pytest.raises(op.InputError, match="is the fit shown for"):
         op.fit_scene_drawing(arm, fit, camera)
+    # Searching for a sketch (none named or picked) never settles on the overlay.
+    from gesture_pose.blender.operator_utils import resolve_sketch
+
+    assert not [o for o in bpy.context.scene.objects
+                if o.type == "GREASEPENCIL" and o is not fit]
+    with bpy.context.temp_override(active_object=fit, selected_objects=[fit]):
+        with pytest.raises(op.InputError, match="No sketch"):
+            resolve_sketch(bpy.context)
 
 
 def test_bad_input_is_reported(registered):

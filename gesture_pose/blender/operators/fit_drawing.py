@@ -29,6 +29,7 @@ from ...core.gesture.trace import Perturbation, TracedContours, perturb, trace_c
 from ...core.gesture.types import Embedding2D
 from ...core.skeleton import Pose
 from ..operator_utils import (
+    FIT_OF,
     GesturePoseOperatorMixin,
     report_result,
     resolve_armature,
@@ -42,8 +43,6 @@ from ..read_view import camera_from_context
 
 #: Layer of the sketch that shows the fit (replaced by every fit).
 FIT_LAYER = "gesture_pose fit"
-#: Custom property naming the curve sketch a fit overlay object belongs to.
-FIT_OF = "gesture_pose_fit_of"
 #: Layers written by the extension itself, never read as drawing.
 OWN_LAYER_PREFIXES = ("gesture_pose", "Gesture Fit")
 #: Colours of the fit overlay: character's left, right, middle, matched contours.
