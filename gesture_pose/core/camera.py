@@ -9,6 +9,7 @@ at the bottom-left corner of the region, x to the right and y up.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -43,14 +44,6 @@ class Camera:
             object.__setattr__(self, attr, m)
         if self.width <= 0 or self.height <= 0:
             raise InputError("The view has no area (width or height is zero).")
-        full = self.projection_matrix @ self.view_matrix
-        try:
-            inverse = np.linalg.inv(full)
-        except np.linalg.LinAlgError:
-            raise InputError("The view's projection cannot be inverted.") from None
-        # Computed once: the per-stroke solvers project and unproject many times.
-        object.__setattr__(self, "_full", full)
-        object.__setattr__(self, "_inverse_full", inverse)
 
     @classmethod
     def look_at(
@@ -103,15 +96,24 @@ class Camera:
             proj[3, 3] = 1.0
         return cls(view, proj, width, height, ortho_scale is None)
 
-    @property
+    # Cached (in the instance's __dict__, which a frozen dataclass still has): the
+    # per-stroke solvers project and unproject many times with one camera.
+    @cached_property
     def full_matrix(self) -> np.ndarray:
         """World to clip transform ``P V``, shape ``(4, 4)``."""
-        return self._full
+        return self.projection_matrix @ self.view_matrix
 
-    @property
+    @cached_property
     def inverse_full_matrix(self) -> np.ndarray:
-        """Clip to world transform ``(P V)^-1``, shape ``(4, 4)``."""
-        return self._inverse_full
+        """Clip to world transform ``(P V)^-1``, shape ``(4, 4)``.
+
+        Raises:
+            InputError: The projection is singular.
+        """
+        try:
+            return np.linalg.inv(self.full_matrix)
+        except np.linalg.LinAlgError:
+            raise InputError("The view's projection cannot be inverted.") from None
 
     @property
     def location(self) -> np.ndarray:
@@ -153,7 +155,7 @@ class Camera:
 
     def _unproject_ndc(self, ndc: np.ndarray) -> np.ndarray:
         homo = np.concatenate([ndc, np.ones(ndc.shape[:-1] + (1,))], -1)
-        world = homo @ self._inverse_full.T
+        world = homo @ self.inverse_full_matrix.T
         return world[..., :3] / world[..., 3:4]
 
     def rays(self, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -197,3 +197,16 @@ def test_distance_to_polyline_tree_path_matches_every_segment() -> None:
         assert len(pts) * (n - 1) > _BRUTE_FORCE_PAIRS
         every = _segment_distance(pts[:, None], line[None, :-1], line[None, 1:]).min(axis=1)
         np.testing.assert_allclose(distance_to_polyline(pts, line), every, atol=1e-9)
+
+
+def test_camera_survives_a_pickle_round_trip() -> None:
+    import pickle
+
+    cam = front_camera()
+    fresh = pickle.loads(pickle.dumps(cam))
+    cam.project(np.zeros((1, 3)))  # fills the cached matrices of the original
+    again = pickle.loads(pickle.dumps(cam))
+    pix = np.array([[10.0, 20.0]])
+    for c in (fresh, again):
+        np.testing.assert_allclose(c.full_matrix, cam.full_matrix)
+        np.testing.assert_allclose(c.rays(pix)[1], cam.rays(pix)[1])
