@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from gesture_pose.core.exceptions import InputError
 from gesture_pose.core.gesture.embedding import fit_drawing
+from gesture_pose.core.gesture.mrf import interior_joints, make_problem
+from gesture_pose.core.gesture.preprocess import preprocess
 from gesture_pose.core.gesture.radii import discrete_radii, fit_sphere, joint_radii
+from gesture_pose.core.gesture.refine import rigid_groups
 from gesture_pose.core.gesture.solving import solving_skeleton
 from gesture_pose.core.skeleton import Pose
 from gesture_pose.core.stroke import Stroke
@@ -116,3 +121,26 @@ def test_discrete_radii_step_epsilon():
     np.testing.assert_allclose(discrete_radii(10, 11, 10), [10.5])
     np.testing.assert_allclose(discrete_radii(10, 15, 10), [10, 15])
     assert len(discrete_radii(1, 100, 1, max_count=4)) == 4
+
+
+def test_interior_bones_join_the_rigid_neighbourhood():
+    """A bone hanging from a rigid offset whose tail's circle overlaps the circle of the joint
+    the offset starts from (a clavicle inside the chest) is rigid; a longer one is free."""
+    sol = solving_skeleton(tree_skeleton())
+    chest = sol.tail_joint[0]
+    heads = [sol.head_joint[k] for k in (2, 4)]  # arm.L and arm.R heads, rigid offsets
+    tails = [sol.tail_joint[k] for k in (2, 4)]  # 0.6 from the chest joint
+    assert all(sol.joint_link_bone[h] == -1 and sol.joint_parent[h] == chest for h in heads)
+    radius = np.full(sol.n_joints, 0.2)
+    assert not interior_joints(sol, radius).any()
+    radius[chest] = 0.45  # 0.45 + 0.2 > 0.6: both arm tails lie inside the chest's circle
+    inside = interior_joints(sol, radius)
+    assert np.flatnonzero(inside).tolist() == sorted(tails)
+    cam = front_camera(ortho=True)
+    stroke = Stroke(np.array([[100.0, 100.0], [700.0, 500.0]]))
+    problem = make_problem(preprocess([stroke]), sol, 100.0, cam.project(sol.rest_joints))
+    assert np.flatnonzero(problem.rigid).tolist() == sorted(heads)
+    problem = replace(problem, interior=inside)
+    assert np.flatnonzero(problem.rigid).tolist() == sorted(heads + tails)
+    groups = rigid_groups(problem)
+    assert len(groups) == 1 and sorted(groups[0].tolist()) == sorted([chest, *heads, *tails])

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gesture_pose.core.exceptions import InputError
-from gesture_pose.core.gesture.mrf import TreeEnergy, solve_tree
+from gesture_pose.core.gesture.mrf import TreeEnergy, min_marginals, solve_tree
 
 
 def _random_energy(parent: list[int], sizes: list[int], seed: int,
@@ -62,3 +62,34 @@ def test_wrong_table_shape_is_rejected():
     with pytest.raises(InputError):
         TreeEnergy(np.array([-1, 0]), (np.zeros(2), np.zeros(3)), (None, np.zeros((3, 3))),
                    (None, None))
+
+
+@pytest.mark.parametrize("parent,sizes", [
+    ([-1, 0, 1, 2], [3, 4, 2, 3]),
+    ([-1, 0, 0, 1, 2, 1], [2, 3, 3, 2, 3, 2]),
+    ([-1, 0, 1, 1, 1, -1, 5], [3, 2, 3, 2, 2, 3, 2]),
+])
+def test_min_marginals_equal_brute_force(parent, sizes):
+    energy = _random_energy(parent, sizes, seed=5, triplets=False)
+    got = min_marginals(energy)
+    par = np.array(parent)
+    tree = np.zeros(len(par), int)  # the root of each node's tree
+    for j, p in enumerate(par):
+        tree[j] = j if p < 0 else tree[p]
+    for j in range(len(par)):
+        same = np.flatnonzero(tree == tree[j])
+        for b in range(sizes[j]):
+            best = np.inf
+            for labels in itertools.product(*[range(sizes[k]) for k in same]):
+                lab = dict(zip(same.tolist(), labels, strict=True))
+                if lab[j] != b:
+                    continue
+                e = sum(energy.unary[k][lab[k]] for k in same)
+                e += sum(energy.pairwise[k][lab[par[k]], lab[k]] for k in same if par[k] >= 0)
+                best = min(best, e)
+            assert got[j][b] == pytest.approx(best, abs=1e-12)
+
+
+def test_min_marginals_refuse_triplets():
+    with pytest.raises(InputError):
+        min_marginals(_random_energy([-1, 0, 1], [2, 2, 2], seed=0))

@@ -20,7 +20,15 @@ from ..stroke import Stroke
 from .candidates import JointCandidates, best, consolidate, contour_candidates, grid_candidates
 from .consistency import assign_contours, block_overlaps, permute, symmetric_limbs, twist_score
 from .costs import CostParams, unary_cost
-from .mrf import build_energy, configuration, joint_energy, make_problem, solve_tree
+from .mrf import (
+    build_energy,
+    configuration,
+    interior_joints,
+    joint_energy,
+    make_problem,
+    min_marginals,
+    solve_tree,
+)
 from .preprocess import PreprocessParams, preprocess
 from .radii import discrete_radii, joint_radii
 from .refine import RefineParams, refine
@@ -45,6 +53,15 @@ class GestureParams:
         coarse_grid: Grid points of the coarse occlusion grid.
         fine_reach: Radius around the coarse answer searched by the fine pass, epsilons.
         fine_grid_reach: Half-width of the fine grid around the coarse answer, epsilons.
+        alternatives: Next-best coarse placements per joint (by min-marginal) added to the
+            fine pass with their neighbourhoods (0: the fine pass searches only around the
+            coarse answer).
+        alternative_spread: Least distance between those placements, epsilons.
+        alternative_neighbours: Contour candidates kept around each of them.
+        rigid_search: Rigidly attached joints (hips, shoulders) are searched only at their
+            parent's candidates moved by the offset (Section 6's reduced degrees of
+            freedom during the search, not only in the refinement).
+        rigid_turns: Extra turns of those offsets searched, degrees.
         max_radii: Most candidate radii per joint.
         min_coverage: Coverage the consistency step requires.
         overlap_penalty: Penalty per overlapping pair of bones or joints.
@@ -66,6 +83,11 @@ class GestureParams:
     coarse_grid: int = 40
     fine_reach: float = 5.0
     fine_grid_reach: float = 2.0
+    alternatives: int = 0
+    alternative_spread: float = 3.0
+    alternative_neighbours: int = 4
+    rigid_search: bool = True
+    rigid_turns: tuple[float, ...] = ()
     max_radii: int = 3
     min_coverage: float = 0.85
     overlap_penalty: float = 10.0
@@ -99,6 +121,51 @@ def _near(cands: JointCandidates, centre: np.ndarray, reach: float, count: int
     return cands.take(np.sort(order))
 
 
+def _alternatives(coarse: JointCandidates, marginal: np.ndarray, contour: JointCandidates,
+                  answer: np.ndarray, eps: float, params) -> list[JointCandidates]:
+    """A joint's next-best coarse placements and their neighbourhoods, for the fine pass.
+
+    The coarse pass has no naturalness triplets, so its single answer can fold a limb onto
+    one contour while the right placement comes a close second. Its min-marginals rank
+    every coarse placement by the best whole-skeleton labelling through it; the
+    ``alternatives`` best placements at least ``alternative_spread`` epsilons apart (and
+    from the answer, which the fine pass searches anyway) are kept with up to
+    ``alternative_neighbours`` contour candidates within a coarse cell of each, so the
+    fine pass (with triplets) chooses among them exactly.
+
+    Args:
+        coarse: The joint's coarse candidates, ``K``.
+        marginal: Their min-marginals, ``(K,)``.
+        contour: The joint's contour candidates (the pool).
+        answer: The coarse answer, pixels, ``(2,)``.
+        eps: Resampling step, pixels.
+        params: Embedding parameters.
+
+    Returns:
+        Candidate sets to add to the fine pass.
+    """
+    spread = params.alternative_spread * eps
+    kept = [np.asarray(answer, float)]
+    out = []
+    for k in np.argsort(marginal, kind="stable"):
+        if len(out) >= params.alternatives:
+            break
+        pos = coarse.positions[k]
+        if min(np.linalg.norm(pos - q) for q in kept) < spread:
+            continue
+        kept.append(pos)
+        near = _near(contour, pos, params.coarse_cell * eps, params.alternative_neighbours)
+        out.append(JointCandidates.concat([coarse.take(np.array([k])), near]))
+    return out
+
+
+def _unique(cands: JointCandidates) -> JointCandidates:
+    """The candidates with distinct (position, radius), first occurrence kept."""
+    key = np.c_[cands.positions, cands.radii]
+    _, first = np.unique(key, axis=0, return_index=True)
+    return cands.take(np.sort(first))
+
+
 def _two_pass(problem, contour: list[JointCandidates], mid_r: np.ndarray, params,
               cache: dict | None = None,
               restrict: dict[int, np.ndarray] | None = None
@@ -130,24 +197,28 @@ def _two_pass(problem, contour: list[JointCandidates], mid_r: np.ndarray, params
         grid = grid_candidates(d, spacing, mid_r[j], params=params.costs)
         grid = grid.take(np.zeros(0, int)) if j in restrict and len(pool) else grid
         coarse.append(JointCandidates.concat([pool, grid]))
-    coarse = _with_rigid(problem, coarse)
+    coarse = _with_rigid(problem, coarse, params.rigid_turns, params.rigid_search)
     # Coarse candidates are up to a cell off: widen the length tolerances accordingly.
     slack = params.coarse_cell * eps / d.diagonal
     loose = replace(problem.params,
                     sigma_length=float(np.hypot(problem.params.sigma_length, 2 * slack)),
                     rigid_sigma=float(np.hypot(problem.params.rigid_sigma, 2 * slack)))
-    labels, _ = solve_tree(build_energy(replace(problem, params=loose), coarse,
-                                        triplets=False, stations=params.coarse_stations,
-                                        cache=cache))
+    coarse_energy = build_energy(replace(problem, params=loose), coarse, triplets=False,
+                                 stations=params.coarse_stations, cache=cache)
+    labels, _ = solve_tree(coarse_energy)
     first = configuration(coarse, labels)
+    marginals = min_marginals(coarse_energy) if params.alternatives else None
     reach = params.fine_grid_reach * eps
     fine = []
     for j, c in enumerate(contour):
         near = _near(c, first.positions[j], params.fine_reach * eps, params.max_candidates)
         grid = grid_candidates(d, eps, mid_r[j], first.positions[j], reach, params.costs)
         grid = grid.take(np.zeros(0, int)) if j in restrict and len(near) else grid
-        fine.append(JointCandidates.concat([near, grid]))
-    fine = _with_rigid(problem, fine)
+        parts = [near, grid]
+        if marginals is not None and j not in restrict:
+            parts += _alternatives(coarse[j], marginals[j], c, first.positions[j], eps, params)
+        fine.append(_unique(JointCandidates.concat(parts)))
+    fine = _with_rigid(problem, fine, params.rigid_turns, params.rigid_search)
     labels, energy = solve_tree(build_energy(problem, fine, cache=cache))
     return fine, labels, energy
 
@@ -205,19 +276,28 @@ def _enumerate_terminals(problem, base, contour: list[JointCandidates], mid_r: n
     return conf, trials
 
 
-def _with_rigid(problem, cands: list[JointCandidates]) -> list[JointCandidates]:
-    """Add to every rigidly attached joint its parent's candidates moved by the offset.
+def _with_rigid(problem, cands: list[JointCandidates], turns: tuple[float, ...] = (),
+                snap: bool = True) -> list[JointCandidates]:
+    """Candidates of the rigidly attached joints from their parent's, by the offset.
 
-    A hip or shoulder head sits at a fixed offset from the pelvis or chest; deriving its
-    candidates from the parent's keeps the exact rigid placement available to the MRF.
+    A hip or shoulder head sits at a fixed offset from the pelvis or chest (a joint of
+    reduced degrees of freedom, Section 6). Its candidates are its parent's moved by the
+    offset seen in the view, also turned by each angle of ``turns`` (degrees) for a torso
+    that turns in the drawing. With ``snap`` these are its only candidates, so the search
+    itself keeps the rigid neighbourhood (a shoulder cannot leave the chest for a hand's
+    contour, reversing the arm chain); otherwise they are added to its own.
     """
     s, d = problem.solving, problem.drawing
     out = list(cands)
     for j in range(s.n_joints):
         p = s.joint_parent[j]
-        if p < 0 or s.joint_link_bone[j] >= 0:
+        if not problem.rigid[j]:
             continue
-        moved = out[p].positions + problem.link_offset[j]
+        off = problem.link_offset[j]
+        rads = np.radians(np.r_[0.0, np.asarray(turns, float)])
+        rot = np.stack([np.cos(rads) * off[0] - np.sin(rads) * off[1],
+                        np.sin(rads) * off[0] + np.cos(rads) * off[1]], axis=1)
+        moved = (out[p].positions[None] + rot[:, None]).reshape(-1, 2)
         r = np.full(len(moved), float(np.median(cands[j].radii)))
         _, aligned = unary_cost(d, moved, r, bool(problem.terminal[j]), problem.params)
         # Placed by rigidity, not by the contours: no unary cost.
@@ -225,7 +305,7 @@ def _with_rigid(problem, cands: list[JointCandidates]) -> list[JointCandidates]:
         side = np.zeros(len(moved), int)
         shifted = JointCandidates(moved, r, side, -np.ones(len(moved), int),
                                   -np.ones(len(moved), int), cost, aligned)
-        out[j] = JointCandidates.concat([cands[j], shifted])
+        out[j] = shifted if snap else JointCandidates.concat([cands[j], shifted])
     return out
 
 
@@ -273,6 +353,8 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
     t0 = time.perf_counter()
     r_min, r_max = joint_radii(solving, skeleton, vertices, weights)
     problem = make_problem(drawing, solving, ppu, reference, params.costs)
+    if params.rigid_search:
+        problem = replace(problem, interior=interior_joints(solving, r_max))
     eps = drawing.epsilon
     terminal = problem.terminal
     contour = [contour_candidates(drawing, discrete_radii(r_min[j] * ppu, r_max[j] * ppu, eps,

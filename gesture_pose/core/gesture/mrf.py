@@ -136,6 +136,43 @@ def solve_tree(energy: TreeEnergy) -> tuple[np.ndarray, float]:
     return labels, total
 
 
+def min_marginals(energy: TreeEnergy) -> list[np.ndarray]:
+    """Min-marginals of a tree energy with pairwise factors only (min-sum BP, two passes).
+
+    ``M_j[b]`` is the lowest energy of any labelling with ``x_j = b`` (over the tree that
+    holds ``j``; other trees of a forest add a constant). Upward messages are those of
+    :func:`solve_tree`; the downward message to ``j`` is
+    ``D_j[b] = min_a (P_j[a, b] + U_p[a] + D_p[a] + sum_{c != j child of p} m_c[a])``.
+
+    Args:
+        energy: Factor tables without triplets.
+
+    Returns:
+        ``M_j`` per node, ``(K_j,)`` each.
+
+    Raises:
+        InputError: The energy has triplet factors.
+    """
+    if any(t is not None for t in energy.triplet):
+        raise InputError("Min-marginals are computed for pairwise trees only.")
+    par = np.asarray(energy.parent, dtype=int)
+    n = len(par)
+    below = [np.array(u, float) for u in energy.unary]  # U_j + messages from children
+    up: list[np.ndarray | None] = [None] * n
+    for j in range(n - 1, -1, -1):
+        p = par[j]
+        if p >= 0:
+            up[j] = np.min(energy.pairwise[j] + below[j][None, :], axis=1)
+            below[p] = below[p] + up[j]
+    down = [np.zeros(len(u)) for u in energy.unary]
+    for j in range(n):
+        p = par[j]
+        if p >= 0:
+            rest = below[p] + down[p] - up[j]
+            down[j] = np.min(energy.pairwise[j] + rest[:, None], axis=0)
+    return [below[j] + down[j] for j in range(n)]
+
+
 @dataclass(frozen=True)
 class MatchProblem:
     """Data of the 2D matching energy.
@@ -155,6 +192,8 @@ class MatchProblem:
         blocked: Contour samples each solving bone may not claim, ``(m, N)`` bool, or None
             (set by the consistency step to resolve overlaps).
         reference: The joints in the view at the current pose, pixels, ``(J, 2)``.
+        interior: Joints at the end of an interior bone (a clavicle inside the torso's
+            outline, see :func:`interior_joints`), ``(J,)`` bool, or None.
     """
 
     drawing: Drawing
@@ -166,6 +205,18 @@ class MatchProblem:
     link_offset: np.ndarray
     blocked: np.ndarray | None = None
     reference: np.ndarray | None = None
+    interior: np.ndarray | None = None
+
+    @property
+    def rigid(self) -> np.ndarray:
+        """Joints of reduced degrees of freedom, ``(J,)`` bool.
+
+        They are placed from their parent by the offset in the view: rigid links (hip and
+        shoulder heads) and interior bones' tails.
+        """
+        out = self.solving.joint_link_bone < 0
+        out &= self.solving.joint_parent >= 0
+        return out if self.interior is None else out | self.interior
 
     def bone_blocked(self, j: int) -> np.ndarray | None:
         """Blocked samples of the bone linking joint ``j`` to its parent (None if free)."""
@@ -177,6 +228,32 @@ class MatchProblem:
     def has_triplet(self, j: int) -> bool:
         """Whether joint ``j`` closes a triplet (two consecutive bone links)."""
         return bool(np.isfinite(self.rest_angle[j]))
+
+
+def interior_joints(solving: SolvingSkeleton, radius: np.ndarray) -> np.ndarray:
+    """Tails of interior bones: bones with no contour of their own (Section 6).
+
+    A bone hanging from a rigid offset (a clavicle from the chest, through the shoulder's
+    head) whose tail's circle overlaps the circle of the joint the offset starts from lies
+    inside that part's outline: nothing in the drawing locates it, so it moves with the
+    rigid neighbourhood (a thigh hanging from the pelvis ends far outside it and stays free).
+
+    Args:
+        solving: The solving skeleton.
+        radius: Largest radius of each joint, world units, ``(J,)``.
+
+    Returns:
+        ``(J,)`` bool.
+    """
+    par, link, rest = solving.joint_parent, solving.joint_link_bone, solving.rest_joints
+    out = np.zeros(solving.n_joints, bool)
+    for j in range(solving.n_joints):
+        p = par[j]
+        if link[j] < 0 or p < 0 or link[p] >= 0 or par[p] < 0:
+            continue
+        g = par[p]
+        out[j] = np.linalg.norm(rest[j] - rest[g]) < radius[g] + radius[j]
+    return out
 
 
 def make_problem(drawing: Drawing, solving: SolvingSkeleton, pixels_per_unit: float,

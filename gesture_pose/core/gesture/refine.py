@@ -40,7 +40,11 @@ class RefineParams:
         step: Standard deviation of a trial move, in epsilons.
         seed: Random seed.
         snap_rigid: Snap the rigid neighbourhoods (pelvis, shoulders).
-        snap_slack: A snap is kept unless it raises the group's energy by more than this.
+        group_trials: Trial moves of a rigid neighbourhood per sweep.
+        group_turn: Standard deviation of a rigid neighbourhood's trial turn, degrees.
+        snap_slack: A snap is kept unless it raises the group's energy by more than this
+            (infinite: always, as in the paper). A group's rigid joints do not walk on
+            their own: the group walks as a whole.
     """
 
     iterations: int = 8
@@ -48,7 +52,9 @@ class RefineParams:
     step: float = 0.5
     seed: int = 0
     snap_rigid: bool = True
-    snap_slack: float = 0.1
+    group_trials: int = 6
+    group_turn: float = 3.0
+    snap_slack: float = float("inf")
 
 
 def _factor_energy(problem: MatchProblem, conf: JointCandidates, j: int,
@@ -125,13 +131,23 @@ def _with(conf: JointCandidates, positions: np.ndarray) -> JointCandidates:
 
 
 def rigid_groups(problem: MatchProblem) -> list[np.ndarray]:
-    """Joints tied by rigid offsets: a joint and its rigidly attached children, ``(k,)``."""
+    """Rigid neighbourhoods: a free joint and the rigid joints hanging from it, ``(k,)``.
+
+    Rigid joints (see :attr:`MatchProblem.rigid`: hip and shoulder heads, interior bones'
+    tails such as a clavicle's) are collected down the tree, so a chest's group holds the
+    shoulder heads and the clavicle tails.
+    """
     s = problem.solving
+    rigid = problem.rigid
     out = []
-    for p in range(s.n_joints):
-        kids = np.flatnonzero((s.joint_parent == p) & (s.joint_link_bone < 0))
-        if kids.size:
-            out.append(np.concatenate([[p], kids]))
+    for p in np.flatnonzero(~rigid):
+        grp = [int(p)]
+        k = 0
+        while k < len(grp):
+            grp += [int(c) for c in np.flatnonzero((s.joint_parent == grp[k]) & rigid)]
+            k += 1
+        if len(grp) > 1:
+            out.append(np.array(grp))
     return out
 
 
@@ -155,6 +171,38 @@ def kabsch_2d(template: np.ndarray, target: np.ndarray) -> np.ndarray:
     return a @ rot.T + target.mean(axis=0)
 
 
+def _walk_group(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
+                grp: np.ndarray, rng: np.random.Generator, params: RefineParams) -> np.ndarray:
+    """One random-walk step of a rigid neighbourhood moved as a whole.
+
+    Trials turn the group about its centroid (``group_turn`` degrees, Gaussian) and move
+    it (``step`` epsilons, Gaussian); the best trial lowering the energy of the group's
+    factors, with its free joint staying on the same side of the nearby contours, is kept.
+
+    Returns:
+        The new positions ``(J, 2)``, or ``pos`` itself when no trial is better.
+    """
+    eps = problem.drawing.epsilon
+    n = params.group_trials
+    ang = np.radians(rng.normal(0.0, params.group_turn, n))
+    shift = rng.normal(0.0, params.step * eps, (n, 2))
+    centre = pos[grp].mean(axis=0)
+    rel = pos[grp] - centre
+    cos, sin = np.cos(ang)[:, None], np.sin(ang)[:, None]
+    moved = np.stack([cos * rel[:, 0] - sin * rel[:, 1], sin * rel[:, 0] + cos * rel[:, 1]],
+                     axis=2) + centre + shift[:, None]
+    ok = _same_side(problem, pos[grp[0]], moved[:, 0], 2.0 * conf.radii[grp[0]] + eps)
+    best_e = joint_energy(problem, _with(conf, pos), grp)[0] - 1e-6
+    best = pos
+    for k in np.flatnonzero(ok):
+        trial = pos.copy()
+        trial[grp] = moved[k]
+        e = joint_energy(problem, _with(conf, trial), grp)[0]
+        if e < best_e:
+            best_e, best = e, trial
+    return best
+
+
 def refine(problem: MatchProblem, conf: JointCandidates, template: np.ndarray,
            params: RefineParams | None = None) -> tuple[JointCandidates, dict]:
     """Local random walk and rigid snapping to convergence.
@@ -176,10 +224,18 @@ def refine(problem: MatchProblem, conf: JointCandidates, template: np.ndarray,
     pos = conf.positions.copy()
     moves, sweeps = 0, 0
     groups = rigid_groups(problem) if params.snap_rigid else []
+    roots = {int(g[0]): g for g in groups}
     for sweep in range(1, params.iterations + 1):
         sweeps = sweep
         moved = 0
         for j in range(len(pos)):
+            if params.snap_rigid and problem.rigid[j]:
+                continue  # moves with its rigid neighbourhood
+            if j in roots:
+                new = _walk_group(problem, conf, pos, roots[j], rng, params)
+                moved += int(new is not pos)
+                pos = new
+                continue
             cur = _with(conf, pos)
             trial = pos[j] + rng.normal(0.0, params.step * eps, (params.trials, 2))
             trial = np.concatenate([pos[j:j + 1], trial])
@@ -194,6 +250,8 @@ def refine(problem: MatchProblem, conf: JointCandidates, template: np.ndarray,
         for grp in groups:
             trial_pos = pos.copy()
             trial_pos[grp] = kabsch_2d(template[grp], pos[grp])
+            if np.allclose(trial_pos, pos, atol=1e-3):
+                continue
             old = _with(conf, pos)
             new = _with(conf, trial_pos)
             if (joint_energy(problem, new, grp)[0] <= joint_energy(problem, old, grp)[0]
