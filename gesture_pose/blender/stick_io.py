@@ -18,6 +18,7 @@ import numpy as np
 from ..core.camera import Camera
 from ..core.exceptions import InputError
 from ..core.skeleton import Pose
+from ..core.stick.edit import GLOBAL_RADIUS, drag_node
 from ..core.stick.environment import Environment
 from ..core.stick.figure import CharacterFigure, character_figure
 from ..core.stick.graph import SNAP_RADIUS, StickFigure, stick_figure_from_strokes
@@ -274,3 +275,110 @@ def write_stick(sketch_obj, stick: StickFigure, camera: Camera, depth: float, fr
                                        depth) for a, b in edges]
     layer = sketch_obj.data.layers.active or sketch_obj.data.layers[0]
     write_strokes(sketch_obj, layer.name, lines, frame=frame, replace=True)
+
+
+def _layer_strokes(sketch_obj, frame: int) -> tuple[str, list[np.ndarray], float | None]:
+    """The active layer's name, its strokes' world points and their mean point radius."""
+    layer = sketch_obj.data.layers.active or sketch_obj.data.layers[0]
+    strokes = [s for s in read_sketch(sketch_obj, frame) if s.layer_name == layer.name]
+    radii = [s.radius for s in strokes if len(s.radius)]
+    radius = float(np.mean(np.concatenate(radii))) if radii else None
+    return layer.name, [s.points_world.copy() for s in strokes], radius
+
+
+class StickDragSession:
+    """Dragging drawn stick joints (Section 4.2), independent of the viewport's events.
+
+    The modal Edit Stick Figure operator only translates mouse events into
+    :meth:`press`, :meth:`move`, :meth:`release` and :meth:`cancel`; the session holds the
+    armature, the sketch, the matched drawing and the view. A drag shorter than
+    ``global_radius`` pixels moves one joint, a longer one the chain from the pelvis
+    (:func:`~gesture_pose.core.stick.edit.drag_node`); every move rewrites the sketch's
+    active layer as one straight stroke per drawn stick edge, release poses the character
+    again (keyed at the current frame when ``settings.insert_keys``), and cancel puts the
+    strokes back as they were before the drag.
+
+    Args:
+        context: Blender context (its view is the one the figure is read in).
+        settings: An object with the solve settings of :func:`solve_scene` (``snap_radius``,
+            ``facing``, ``environment``, ``seed``, ``suggestions``, ``use_contact``,
+            ``insert_keys``), e.g. the operator.
+        arm_obj: The armature.
+        sketch_obj: The Grease Pencil object holding the stick figure.
+        global_radius: Drags longer than this (pixels) move the chain.
+        pick_radius: A press farther than this (pixels) from every drawn joint picks none.
+
+    Raises:
+        InputError: The drawing cannot be read or does not match the character.
+    """
+
+    def __init__(self, context, settings, arm_obj, sketch_obj,
+                 global_radius: float = GLOBAL_RADIUS, pick_radius: float = 25.0) -> None:
+        if sketch_obj is None or sketch_obj.type != "GREASEPENCIL":
+            raise InputError("Edit Stick Figure needs a Grease Pencil sketch: pick one.")
+        self.settings = settings
+        self.armature = arm_obj
+        self.sketch = sketch_obj
+        self.global_radius = float(global_radius)
+        self.pick_radius = float(pick_radius)
+        self.frame = context.scene.frame_current
+        st = read_stick_scene(context, arm_obj, sketch_obj, settings.snap_radius,
+                              settings.facing)
+        self.camera, self.depth, self.stick = st.camera, st.sketch_depth, st.stick
+        self.joint: int | None = None
+        self._start: StickFigure | None = None
+        self._saved: tuple[str, list[np.ndarray], float | None] | None = None
+        self.moved = False
+
+    @property
+    def dragging(self) -> bool:
+        """Whether a joint is being dragged."""
+        return self.joint is not None
+
+    def press(self, xy) -> str | None:
+        """Pick the drawn joint nearest to ``xy`` (pixels, ``(2,)``); its name or None."""
+        d = np.linalg.norm(self.stick.points - np.asarray(xy, float), axis=1)
+        d[~self.stick.present] = np.inf
+        j = int(np.argmin(d))
+        if not d[j] < self.pick_radius:
+            self.joint = None
+            return None
+        self.joint, self._start, self.moved = j, self.stick, False
+        self._saved = _layer_strokes(self.sketch, self.frame)
+        return self.stick.joint_names[j]
+
+    def move(self, xy) -> bool:
+        """Drag the picked joint to ``xy`` (pixels) and rewrite the strokes; False if none."""
+        if self.joint is None:
+            return False
+        self.stick = drag_node(self._start, self.joint, np.asarray(xy, float),
+                               self.global_radius)
+        write_stick(self.sketch, self.stick, self.camera, self.depth, self.frame)
+        self.moved = True
+        return True
+
+    def release(self, context=None) -> StickResult | None:
+        """End the drag and pose the character from the edited drawing.
+
+        Returns:
+            The solve's result; None when no joint was dragged (nothing is posed).
+        """
+        if self.joint is None or not self.moved:
+            self.joint = self._start = self._saved = None
+            return None
+        self.joint = self._start = self._saved = None
+        result, _ = solve_scene(context or bpy.context, self.settings, self.armature,
+                                self.sketch)
+        return result
+
+    def cancel(self) -> bool:
+        """Abort the drag: the strokes and the drawing go back to before it (False: none)."""
+        if self.joint is None:
+            return False
+        layer, lines, radius = self._saved
+        if lines:
+            write_strokes(self.sketch, layer, lines, frame=self.frame, replace=True,
+                          radius=radius)
+        self.stick = self._start
+        self.joint = self._start = self._saved = None
+        return True

@@ -137,19 +137,103 @@ def test_pin_to_limb_and_clear(registered):
     assert limb == () and len(env) == 1
 
 
-def test_edited_stick_is_written_back_to_the_sketch(registered):
-    from gesture_pose.blender.operators.stick import GESTUREPOSE_OT_edit_stick_figure
-    from gesture_pose.blender.stick_io import read_stick_scene, write_stick
-    from gesture_pose.core.stick.edit import drag_node
+class _Settings:
+    """The solve settings the operators hold (their defaults, no keys unless asked)."""
 
-    sc = sb.build_stick_scene("stand")
+    snap_radius, facing, environment, seed = 20.0, "front", "", 0
+    suggestions, use_contact, insert_keys = 1, False, True
+
+
+def _session(pose="stand"):
+    from gesture_pose.blender.stick_io import StickDragSession
+
+    sc = sb.build_stick_scene(pose)
     arm, sketch = sc["armature"], sc["sketch"]
-    st = read_stick_scene(bpy.context, arm, sketch)
-    wrist = st.stick.joint_names.index("wrist.L")
-    edited = drag_node(st.stick, wrist, st.stick.points[wrist] + [90.0, 60.0])
-    write_stick(sketch, edited, st.camera, st.sketch_depth, bpy.context.scene.frame_current)
-    again = read_stick_scene(bpy.context, arm, sketch)
-    drawn = again.stick.present
-    assert np.allclose(again.stick.points[drawn], edited.points[drawn], atol=0.5)
-    # The modal editor needs a 3D View: headless, its poll says so.
+    bpy.context.scene.frame_set(5)
+    return sc, StickDragSession(bpy.context, _Settings(), arm, sketch)
+
+
+def test_drag_session_short_drag_moves_one_joint_and_release_poses(registered):
+    from gesture_pose.blender.stick_io import read_stick_scene
+
+    sc, session = _session()
+    arm, sketch = sc["armature"], sc["sketch"]
+    before = session.stick.points.copy()
+    wrist = session.stick.joint_names.index("wrist.L")
+    # A press far from every joint picks none; moves then do nothing.
+    assert session.press(before[wrist] + [300.0, 300.0]) is None
+    assert not session.move(before[wrist]) and session.release() is None
+    assert session.press(before[wrist] + [3.0, -2.0]) == "wrist.L"
+    assert session.move(before[wrist] + [10.0, 5.0])
+    assert session.move(before[wrist] + [20.0, 15.0])  # 25 px < the global radius
+    drawn = read_stick_scene(bpy.context, arm, sketch).stick
+    moved = np.linalg.norm(drawn.points - before, axis=1)
+    present = drawn.present
+    assert abs(moved[wrist] - 25.0) < 1.0
+    assert np.all(moved[present & (np.arange(len(moved)) != wrist)] < 0.5)
+    assert not arm.animation_data or not arm.animation_data.action
+    result = session.release()
+    assert result is not None and not session.dragging
+    # Posed from the edited drawing and keyed at the current frame only.
+    assert keyed_frames(arm, "pelvis", "location") == [5.0]
+    assert keyed_frames(arm, "upper_arm.L", "rotation_quaternion") == [5.0]
+    got = session.camera.project(sb.stick_joints(arm)["wrist.L"][None])[0]
+    assert np.linalg.norm(got - drawn.points[wrist]) < np.linalg.norm(got - before[wrist])
+
+
+def test_drag_session_far_drag_moves_the_chain(registered):
+    from gesture_pose.blender.stick_io import read_stick_scene
+    from gesture_pose.core.stick.edit import laplacian_chain
+
+    sc, session = _session()
+    arm, sketch = sc["armature"], sc["sketch"]
+    st = session.stick
+    before = st.points.copy()
+    names = st.joint_names
+    j = {n: names.index(n) for n in ("pelvis", "neck", "elbow.L", "wrist.L", "head",
+                                     "elbow.R", "knee.L")}
+    target = before[j["wrist.L"]] + [120.0, 90.0]
+    session.press(before[j["wrist.L"]])
+    session.move(target)
+    drawn = read_stick_scene(bpy.context, arm, sketch).stick
+    chain = [j["pelvis"], j["neck"], j["elbow.L"], j["wrist.L"]]
+    # The chain from the pelvis bends (Laplacian solve), the rest follows rigidly.
+    assert np.allclose(drawn.points[chain], laplacian_chain(before[chain], target), atol=0.5)
+    assert np.linalg.norm(drawn.points[j["elbow.L"]] - before[j["elbow.L"]]) > 20.0
+    shift = drawn.points[j["neck"]] - before[j["neck"]]
+    assert np.linalg.norm(shift) > 5.0
+    for n in ("head", "elbow.R"):
+        assert np.allclose(drawn.points[j[n]] - before[j[n]], shift, atol=0.5)
+    assert np.allclose(drawn.points[j["knee.L"]], before[j["knee.L"]], atol=0.5)
+    assert session.cancel()
+
+
+def test_drag_session_cancel_restores_the_drawing(registered):
+    from gesture_pose.blender.read_strokes import read_sketch
+
+    sc, session = _session()
+    arm, sketch = sc["armature"], sc["sketch"]
+    original = [s.points_world.copy() for s in read_sketch(sketch)]
+    start = session.stick.points.copy()
+    knee = session.stick.joint_names.index("knee.R")
+    session.press(start[knee])
+    session.move(start[knee] + [80.0, 0.0])
+    edited = [s.points_world for s in read_sketch(sketch)]
+    assert not all(len(a) == len(b) and np.allclose(a, b, atol=1e-3)
+                   for a, b in zip(edited, original, strict=True))
+    assert session.cancel() and not session.dragging
+    restored = [s.points_world for s in read_sketch(sketch)]
+    assert len(restored) == len(original)
+    assert all(np.allclose(a, b, atol=1e-5) for a, b in zip(restored, original, strict=True))
+    assert np.array_equal(session.stick.points, start, equal_nan=True)
+    assert session.release() is None  # nothing left to pose
+    assert not arm.animation_data or not arm.animation_data.action
+    assert not session.cancel()
+
+
+def test_edit_operator_needs_a_view_headless(registered):
+    from gesture_pose.blender.operators.stick import GESTUREPOSE_OT_edit_stick_figure
+
+    # The modal editor needs a 3D View: headless, its poll says so (its logic is the
+    # session tested above).
     assert not GESTUREPOSE_OT_edit_stick_figure.poll(bpy.context)

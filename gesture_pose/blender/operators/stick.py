@@ -15,7 +15,7 @@ import numpy as np
 
 from ...core.exceptions import InputError
 from ...core.skeleton import Pose
-from ...core.stick.edit import GLOBAL_RADIUS, drag_node
+from ...core.stick.edit import GLOBAL_RADIUS
 from ...core.stick.figure import HUMANOID_JOINTS, character_figure
 from ...core.stick.graph import SNAP_RADIUS
 from ...core.stick.pins import EnvPinSpec, LimbPinSpec, limb_parameter, pin_candidates
@@ -29,6 +29,7 @@ from ..operator_utils import (
 from ..panel import GesturePoseSubPanel
 from ..read_armature import read_armature
 from ..stick_io import (
+    StickDragSession,
     environment_objects,
     read_environment,
     read_pins,
@@ -39,7 +40,6 @@ from ..stick_io import (
     solve_scene,
     toggle_swap,
     write_pins,
-    write_stick,
 )
 from ..write_pose import apply_pose
 
@@ -255,47 +255,37 @@ class GESTUREPOSE_OT_edit_stick_figure(_StickSolveProps, bpy.types.Operator):
         return True
 
     def invoke(self, context, event):
-        """Read the drawing and start dragging."""
+        """Read the drawing and start the drag session."""
         try:
-            self._arm = resolve_armature(context, self.armature)
-            self._sketch = resolve_sketch(context, self.sketch, self._arm)
-            self._scene = read_stick_scene(context, self._arm, self._sketch,
-                                           self.snap_radius, self.facing)
+            arm = resolve_armature(context, self.armature)
+            sketch = resolve_sketch(context, self.sketch, arm)
+            self._session = StickDragSession(context, self, arm, sketch, self.global_radius)
         except InputError as err:
             self.report({"ERROR"}, str(err))
             return {"CANCELLED"}
-        self._stick = self._scene.stick
-        self._drag = None
         context.window_manager.modal_handler_add(self)
-        context.workspace.status_text_set("Drag stick joints; Esc/right mouse: done")
+        context.workspace.status_text_set("Drag stick joints; Esc: undo the drag or finish; "
+                                          "right mouse: finish")
         return {"RUNNING_MODAL"}
 
-    def _pick(self, xy) -> int | None:
-        d = np.linalg.norm(self._stick.points - xy, axis=1)
-        d[~self._stick.present] = np.inf
-        j = int(np.argmin(d))
-        return j if d[j] < 25.0 else None
-
     def modal(self, context, event):
-        """Pick on press, drag on move, write and re-pose on release."""
-        xy = np.array([event.mouse_region_x, event.mouse_region_y], float)
-        if event.type in {"ESC", "RIGHTMOUSE"}:
+        """Translate mouse and key events into the session's press, move, release, cancel."""
+        session = self._session
+        xy = (event.mouse_region_x, event.mouse_region_y)
+        if event.type in {"ESC", "RIGHTMOUSE"} and event.value == "PRESS":
+            if event.type == "ESC" and session.cancel():
+                return {"RUNNING_MODAL"}
             context.workspace.status_text_set(None)
             return {"FINISHED"}
         if event.type == "LEFTMOUSE" and event.value == "PRESS":
-            j = self._pick(xy)
-            self._drag = None if j is None else (j, self._stick)
+            session.press(xy)
             return {"RUNNING_MODAL"}
-        if event.type == "MOUSEMOVE" and self._drag is not None:
-            j, start = self._drag
-            self._stick = drag_node(start, j, xy, self.global_radius)
-            write_stick(self._sketch, self._stick, self._scene.camera,
-                        self._scene.sketch_depth, context.scene.frame_current)
+        if event.type == "MOUSEMOVE" and session.dragging:
+            session.move(xy)
             return {"RUNNING_MODAL"}
-        if event.type == "LEFTMOUSE" and event.value == "RELEASE" and self._drag is not None:
-            self._drag = None
+        if event.type == "LEFTMOUSE" and event.value == "RELEASE" and session.dragging:
             try:
-                solve_scene(context, self, self._arm, self._sketch)
+                session.release(context)
             except InputError as err:
                 self.report({"ERROR"}, str(err))
             return {"RUNNING_MODAL"}
