@@ -93,3 +93,19 @@ def test_min_marginals_equal_brute_force(parent, sizes):
 def test_min_marginals_refuse_triplets():
     with pytest.raises(InputError):
         min_marginals(_random_energy([-1, 0, 1], [2, 2, 2], seed=0))
+
+
+def test_memo_reuses_unchanged_subtrees_and_stays_exact():
+    energy = _random_energy([-1, 0, 1, 1, 3, 0], [3, 2, 3, 2, 3, 2], seed=11)
+    memo: dict = {}
+    first = solve_tree(energy, memo)
+    assert len(memo) == 6
+    # Change the candidates of node 4 (a leaf under 3): only 4, 3, 1 and the root change.
+    unary = list(energy.unary)
+    unary[4] = unary[4] + np.array([5.0, 0.0, 5.0])
+    changed = TreeEnergy(energy.parent, tuple(unary), energy.pairwise, energy.triplet)
+    labels, value = solve_tree(changed, memo)
+    assert len(memo) == 6 + 4
+    assert value == pytest.approx(_brute(changed)[1], abs=1e-12)
+    assert changed.evaluate(labels) == pytest.approx(value, abs=1e-12)
+    assert solve_tree(energy, memo)[1] == pytest.approx(first[1])

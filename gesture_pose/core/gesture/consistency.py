@@ -222,3 +222,59 @@ def permute(conf: JointCandidates, limbs: list[np.ndarray], mask: int) -> JointC
         if mask >> k & 1:
             order[limb[:, 0]], order[limb[:, 1]] = limb[:, 1], limb[:, 0]
     return conf.take(order)
+
+
+def terminal_order(costs: list[np.ndarray], violates: list[np.ndarray],
+                   limit: int) -> np.ndarray:
+    """Terminal assignments in increasing unary cost, non-overlap violators last (Sec. 5.4).
+
+    An assignment gives every terminal joint one of its sites. Assignments are ranked by
+    the sum of their sites' unary costs; those with a site that violates the non-overlap
+    constraint (its circle claims contour samples another, non-adjacent part holds) come
+    after all the others, in the same order among themselves. Ties keep the sites' order.
+
+    Args:
+        costs: Per terminal joint, the unary cost of each of its sites, ``(S_t,)``.
+        violates: Per terminal joint, whether each site violates non-overlap, ``(S_t,)``.
+        limit: Most assignments returned (the enumeration's cap).
+
+    Returns:
+        Site indices, shape ``(n, T)`` int with ``n <= limit`` (``(1, 0)`` without
+        terminals: the empty assignment).
+    """
+    if not costs:
+        return np.zeros((1, 0), dtype=int)
+    grids = np.meshgrid(*[np.arange(len(c)) for c in costs], indexing="ij")
+    idx = np.stack([g.ravel() for g in grids], axis=1)
+    if idx.size == 0:
+        return np.zeros((0, len(costs)), dtype=int)
+    total = sum(np.asarray(c, float)[idx[:, t]] for t, c in enumerate(costs))
+    bad = np.zeros(len(idx), dtype=bool)
+    for t, v in enumerate(violates):
+        bad |= np.asarray(v, bool)[idx[:, t]]
+    order = np.lexsort((np.arange(len(idx)), np.round(total, 9), bad))
+    return idx[order[:limit]]
+
+
+def first_consistent(order: np.ndarray, solve, min_coverage: float):
+    """Solve the assignments in order, stopping at the first meeting the constraints.
+
+    Args:
+        order: Assignments, ``(n, T)`` (see :func:`terminal_order`).
+        solve: ``solve(assignment) -> (overlaps, coverage, energy, result)``.
+        min_coverage: Coverage the constraints require.
+
+    Returns:
+        ``(index of the chosen assignment, its result, solves made)``: the first with no
+        overlap and enough coverage, else the best by (overlaps, -coverage, energy); index
+        -1 and result None when ``order`` is empty.
+    """
+    best_key, best = None, (-1, None)
+    for n, assignment in enumerate(order, start=1):
+        overlaps, coverage, energy, result = solve(assignment)
+        if overlaps == 0 and coverage >= min_coverage:
+            return n - 1, result, n
+        key = (overlaps, -coverage, energy)
+        if best_key is None or key < best_key:
+            best_key, best = key, (n - 1, result)
+    return best[0], best[1], len(order)

@@ -18,7 +18,15 @@ from ..exceptions import InputError
 from ..skeleton import Pose, Skeleton
 from ..stroke import Stroke
 from .candidates import JointCandidates, best, consolidate, contour_candidates, grid_candidates
-from .consistency import assign_contours, block_overlaps, permute, symmetric_limbs, twist_score
+from .consistency import (
+    assign_contours,
+    block_overlaps,
+    first_consistent,
+    permute,
+    symmetric_limbs,
+    terminal_order,
+    twist_score,
+)
 from .costs import CostParams, unary_cost
 from .mrf import (
     build_energy,
@@ -66,7 +74,11 @@ class GestureParams:
         min_coverage: Coverage the consistency step requires.
         overlap_penalty: Penalty per overlapping pair of bones or joints.
         max_terminal_rounds: Overlap-resolving re-solves of the consistency step.
-        max_terminal_trials: Re-solves trying better end caps for terminal joints.
+        terminal_sites: End-cap sites per terminal joint in the enumeration of terminal
+            assignments (Section 5.4).
+        max_terminal_assignments: Most assignments solved by that enumeration (its cap).
+        coverage_gain: Coverage gain for which an enumerated solution that still misses
+            the constraints replaces the current one.
         symmetric_tolerance: Energy slack within which symmetric permutations compete.
         min_drawing_ratio: Smallest drawing diagonal relative to the character's.
     """
@@ -92,7 +104,9 @@ class GestureParams:
     min_coverage: float = 0.85
     overlap_penalty: float = 10.0
     max_terminal_rounds: int = 3
-    max_terminal_trials: int = 2
+    terminal_sites: int = 4
+    max_terminal_assignments: int = 8
+    coverage_gain: float = 0.02
     symmetric_tolerance: float = 0.5
     min_drawing_ratio: float = 0.25
 
@@ -223,57 +237,94 @@ def _two_pass(problem, contour: list[JointCandidates], mid_r: np.ndarray, params
     return fine, labels, energy
 
 
-def _enumerate_terminals(problem, base, contour: list[JointCandidates], mid_r: np.ndarray,
-                         params, cache: dict, conf: JointCandidates
-                         ) -> tuple[JointCandidates, int]:
-    """Try better end caps for terminal joints while coverage stays below the minimum.
+def _enumerate_terminals(problem, base, contour: list[JointCandidates],
+                         fine: list[JointCandidates], conf: JointCandidates, energy: float,
+                         params, cache: dict) -> tuple[JointCandidates, int]:
+    """Section 5.4's enumeration of terminal assignments, when the solution breaks a constraint.
 
-    Terminal joints are visited from the worst fitting; each tries the free end-cap sites
-    of its candidates in increasing unary cost (at most two, ``max_terminal_trials`` in
-    all), and a re-solve with the joint forced there is kept when it covers more of the
-    drawing without adding overlaps (Section 5.4's enumeration of terminal assignments).
+    Each terminal joint's sites are its contour candidates consolidated at 3 epsilon within
+    reach of its parent as placed now, the ``terminal_sites`` cheapest. Assignments (one
+    site per terminal) are solved in increasing unary cost, those whose sites claim contour
+    samples held by a non-adjacent part last (:func:`terminal_order`), up to
+    ``max_terminal_assignments``, stopping at the first meeting non-overlap and coverage
+    (:func:`first_consistent`). A solve is the fine DP over the candidate sets of the
+    current solution with the terminals restricted to their sites; subtrees without a
+    terminal keep their DP tables (``solve_tree``'s memo). The best solve replaces the
+    current solution when it meets the constraints; when none does (traced drawings
+    rarely reach 85% coverage: face and hand details), the best replaces it only with a
+    lower energy counting ``overlap_penalty`` per overlap (at no more than
+    ``coverage_gain`` less coverage), or as many overlaps and ``coverage_gain`` more
+    coverage for at most
+    ``symmetric_tolerance`` more energy (coverage bought with a much worse fit is not
+    kept; measured on crouching figures, where it moved the head and the arms).
 
     Returns:
-        ``(configuration, number of re-solves)``.
+        ``(configuration, number of solves)``.
     """
     d = problem.drawing
     eps = d.epsilon
     assign = assign_contours(base, conf)
     terminals = np.flatnonzero(problem.terminal)
-    if assign.coverage >= params.min_coverage or terminals.size == 0:
+    if (not assign.overlaps and assign.coverage >= params.min_coverage) or terminals.size == 0:
         return conf, 0
-    current = np.array([unary_cost(d, conf.positions[j:j + 1], conf.radii[j:j + 1], True,
-                                   problem.params)[0][0] for j in terminals])
-    restrict: dict[int, np.ndarray] = {}
-    trials = 0
-    for j, cur in sorted(zip(terminals, current, strict=True), key=lambda t: -t[1]):
-        sites = consolidate(contour[j], 3 * eps)
-        sites = sites.take(np.argsort(sites.unary, kind="stable"))
-        taken = conf.positions[terminals]
-        free = (np.linalg.norm(sites.positions[:, None] - taken[None], axis=2) > 3 * eps).all(1)
-        # Within reach of the parent joint as placed now.
-        p = problem.solving.joint_parent[j]
+    s = problem.solving
+    costs, violates, sites = [], [], []
+    for j in terminals:
+        cand = consolidate(contour[j], 3 * eps)
+        p = s.joint_parent[j]
         if p >= 0:
             reach = 1.2 * problem.link_length[j] + 2 * eps
-            free &= np.linalg.norm(sites.positions - conf.positions[p], axis=1) <= reach
-        sites = sites.take(np.flatnonzero(free & (sites.unary < cur - 0.25))[:2])
-        for site in sites.positions:
-            if trials >= params.max_terminal_trials:
-                return conf, trials
-            trials += 1
-            trial = dict(restrict)
-            trial[int(j)] = site
-            cands, labels, _ = _two_pass(problem, contour, mid_r, params, cache, trial)
-            new = configuration(cands, labels)
-            got = assign_contours(base, new)
-            if (len(got.overlaps) <= len(assign.overlaps)
-                    and got.coverage > assign.coverage + 0.02
-                    and joint_energy(base, new)[0] <= joint_energy(base, conf)[0] + 0.5):
-                conf, assign, restrict = new, got, trial
-                break
-        if assign.coverage >= params.min_coverage:
-            break
-    return conf, trials
+            cand = cand.take(np.flatnonzero(
+                np.linalg.norm(cand.positions - conf.positions[p], axis=1) <= reach))
+        cand = cand.take(np.argsort(cand.unary, kind="stable")[:params.terminal_sites])
+        held = _held_by_others(base, assign, int(j), d.n_samples)
+        claims = [np.unique(a[a >= 0]) for a in cand.aligned]
+        violates.append(np.array([held[c].sum() >= 2 for c in claims], dtype=bool))
+        costs.append(cand.unary)
+        sites.append(cand)
+    order = terminal_order(costs, violates, params.max_terminal_assignments)
+    memo: dict = {}
+
+    def solve(assignment: np.ndarray):
+        sets = list(fine)
+        for t, j in enumerate(terminals):
+            site = sites[t].take(np.array([assignment[t]]))
+            near = _near(contour[j], site.positions[0], 1.5 * eps, params.max_candidates)
+            sets[j] = _unique(JointCandidates.concat([site, near]))
+        sets = _with_rigid(problem, sets, params.rigid_turns, params.rigid_search)
+        labels, e = solve_tree(build_energy(problem, sets, cache=cache), memo)
+        new = configuration(sets, labels)
+        got = assign_contours(base, new)
+        return len(got.overlaps), got.coverage, e, new
+
+    index, result, count = first_consistent(order, solve, params.min_coverage)
+    if result is None:
+        return conf, count
+    got = assign_contours(base, result)
+    e_new = joint_energy(problem, result)[0]
+    meets = not got.overlaps and got.coverage >= params.min_coverage
+    pen = params.overlap_penalty
+    fewer = (e_new + pen * len(got.overlaps) < energy + pen * len(assign.overlaps)
+             and got.coverage >= assign.coverage - params.coverage_gain)
+    covers = (len(got.overlaps) == len(assign.overlaps)
+              and got.coverage > assign.coverage + params.coverage_gain
+              and e_new <= energy + params.symmetric_tolerance)
+    return (result if meets or fewer or covers else conf), count
+
+
+def _held_by_others(problem, assign, j: int, n_samples: int) -> np.ndarray:
+    """Contour samples claimed by bones and joints not adjacent to joint ``j``, ``(N,)``."""
+    s = problem.solving
+    held = np.zeros(n_samples, dtype=bool)
+    for b in range(s.n_bones):
+        if j not in (s.head_joint[b], s.tail_joint[b]):
+            held[assign.bone_left[b]] = True
+            held[assign.bone_right[b]] = True
+    near = {j, int(s.joint_parent[j]), *np.flatnonzero(s.joint_parent == j).tolist()}
+    for k, samples in enumerate(assign.joint_samples):
+        if k not in near:
+            held[samples] = True
+    return held
 
 
 def _with_rigid(problem, cands: list[JointCandidates], turns: tuple[float, ...] = (),
@@ -374,13 +425,14 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
     base = problem
     blocked = np.zeros((solving.n_bones, drawing.n_samples), dtype=bool)
     best_sol = None
+    fine_sets = cands
     for rounds in range(params.max_terminal_rounds + 1):
         assign = assign_contours(base, conf)
         n_bad = len(assign.overlaps)
         score = energy + params.overlap_penalty * n_bad
         key = (n_bad, -round(assign.coverage, 2), score)
         if best_sol is None or key < best_sol[0]:
-            best_sol = (key, conf, problem)
+            best_sol = (key, conf, problem, fine_sets, energy)
         if n_bad == 0 and assign.coverage >= params.min_coverage:
             break
         if n_bad == 0 or rounds == params.max_terminal_rounds:
@@ -390,10 +442,12 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
             break  # the same problem again would give the same answer
         blocked = grown
         problem = replace(base, blocked=blocked.copy())
-        cands, labels, energy = _two_pass(problem, contour, mid_r, params, cache)
-        conf = configuration(cands, labels)
-    (n_bad, _, _), conf, problem = best_sol
-    conf, trials = _enumerate_terminals(problem, base, contour, mid_r, params, cache, conf)
+        fine_sets, labels, energy = _two_pass(problem, contour, mid_r, params, cache)
+        conf = configuration(fine_sets, labels)
+    (n_bad, _, _), conf, problem, fine_sets, energy = best_sol
+    conf, trials = _enumerate_terminals(problem, base, contour, fine_sets, conf, energy, params,
+                                        cache)
+    n_bad = len(assign_contours(base, conf).overlaps)
     if n_bad:
         warnings.append(f"{n_bad} pairs of body parts claim the same contour.")
     limbs = symmetric_limbs(problem)

@@ -87,11 +87,14 @@ class TreeEnergy:
         return float(total)
 
 
-def solve_tree(energy: TreeEnergy) -> tuple[np.ndarray, float]:
+def solve_tree(energy: TreeEnergy, memo: dict | None = None) -> tuple[np.ndarray, float]:
     """Exact minimizer of a tree energy with pairwise and triplet factors.
 
     Args:
         energy: The factor tables.
+        memo: Subtree tables of earlier solves, keyed by a hash of the subtree's factors:
+            a re-solve with a few candidate sets changed (the terminal enumeration of
+            Section 5.4) recomputes only the tables of the subtrees holding them.
 
     Returns:
         ``(labels (J,), minimum energy)``.
@@ -101,8 +104,18 @@ def solve_tree(energy: TreeEnergy) -> tuple[np.ndarray, float]:
     children = [np.flatnonzero(par == j) for j in range(n)]
     table: list[np.ndarray | None] = [None] * n
     arg: dict[int, np.ndarray] = {}
+    sig: list[int] = [0] * n
     for j in range(n - 1, -1, -1):
         p = par[j]
+        if memo is not None:
+            parts = [energy.unary[j], energy.pairwise[j], energy.triplet[j]]
+            sig[j] = hash((j, *(None if a is None else (a.shape, a.tobytes()) for a in parts),
+                           *(sig[c] for c in children[j])))
+            hit = memo.get(sig[j])
+            if hit is not None:
+                table[j] = hit[0]
+                arg.update(hit[1])
+                continue
         kp = 1 if p < 0 else len(energy.unary[p])
         acc = np.broadcast_to(energy.unary[j][None, :], (kp, len(energy.unary[j]))).copy()
         if p >= 0:
@@ -119,8 +132,9 @@ def solve_tree(energy: TreeEnergy) -> tuple[np.ndarray, float]:
                 best = np.argmin(full, axis=2)
                 acc += np.take_along_axis(full, best[..., None], axis=2)[..., 0]
                 arg[c] = best
-            table[c] = None
         table[j] = acc
+        if memo is not None:
+            memo[sig[j]] = (acc, {c: arg[c] for c in children[j]})
     labels = -np.ones(n, dtype=int)
     total = 0.0
     for j in range(n):
@@ -320,8 +334,8 @@ def build_energy(problem: MatchProblem, cands: list[JointCandidates],
         cands: Candidates of every joint.
         triplets: Include the naturalness triplets (the coarse pass leaves them out).
         stations: Outline samples per bone in the conformity term.
-        cache: Pairwise tables of earlier calls, keyed by their inputs (the consistency
-            step re-solves with a few bones changed).
+        cache: Pairwise and triplet tables of earlier calls, keyed by their inputs (the
+            consistency step re-solves with a few bones changed).
     """
     par = problem.solving.joint_parent
     unary = tuple(c.unary if problem.bone_blocked(j) is None else
@@ -343,8 +357,18 @@ def build_energy(problem: MatchProblem, cands: list[JointCandidates],
                 if cache is not None:
                     cache[key] = table
             pair.append(table)
-        trip.append(triplet_table(problem, j, cands[par[p]], cands[p], cands[j])
-                    if triplets and p >= 0 and problem.has_triplet(j) else None)
+        tr = None
+        if triplets and p >= 0 and problem.has_triplet(j):
+            g = par[p]
+            key = ("triplet", j, *(x.tobytes() for k in (g, p, j)
+                                   for x in (cands[k].positions, cands[k].group)),
+                   problem.params)
+            tr = None if cache is None else cache.get(key)
+            if tr is None:
+                tr = triplet_table(problem, j, cands[g], cands[p], cands[j])
+                if cache is not None:
+                    cache[key] = tr
+        trip.append(tr)
     return TreeEnergy(par, unary, tuple(pair), tuple(trip))
 
 
