@@ -237,3 +237,27 @@ def test_edit_operator_needs_a_view_headless(registered):
     # The modal editor needs a 3D View: headless, its poll says so (its logic is the
     # session tested above).
     assert not GESTUREPOSE_OT_edit_stick_figure.poll(bpy.context)
+
+
+def test_quadruped_ranges_from_the_rig_and_its_ik_limits(registered):
+    from gesture_pose.core.stick.figure import character_figure
+    from sample_scenes import builders
+
+    arm, _ = builders.build_quadruped()
+    pb = arm.pose.bones["shin.L"]
+    pb.use_ik_limit_x, pb.ik_min_x, pb.ik_max_x = True, np.radians(-5.0), np.radians(80.0)
+    pb.use_ik_limit_z, pb.ik_min_z, pb.ik_max_z = True, np.radians(-2.0), np.radians(2.0)
+    data = read_armature(arm)
+    fig, humanoid = character_figure(data.skeleton, data.ik_limits)
+    assert not humanoid
+    groups = {g.name: g for g in fig.groups}
+    # The rig's IK limits take precedence (local x, y, z; y unlimited gets +-120).
+    assert np.allclose(np.degrees(groups["shin.L"].bounds), [[-5, 80], [-120, 120], [-2, 2]])
+    assert groups["shin.L"].comfort is None
+    # Elsewhere the defaults read from the rig: the other hind knee a sagittal hinge
+    # flexing the way it bends at rest, the tail's six segments sharing 180 degrees.
+    shin = groups["shin.R"]
+    axis = data.skeleton.rest_frames[shin.bones[0]] @ shin.bases[0][:, 0]
+    assert shin.bounds.shape == (1, 2) and abs(axis[0]) > 0.99
+    tail = sum(np.degrees(groups[f"tail.{i:03d}"].bounds[0, 1]) for i in range(6))
+    assert np.isclose(tail, 180.0)

@@ -141,3 +141,127 @@ def test_pose_jacobian_against_finite_differences():
     num_t = (T[: x.size] - T[x.size:]) / (2 * h)
     assert np.allclose(np.transpose(num_h, (1, 2, 0)), Jh, atol=1e-6)
     assert np.allclose(np.transpose(num_t, (1, 2, 0)), Jt, atol=1e-6)
+
+
+def quadruped_skeleton() -> Skeleton:
+    """A 27-bone quadruped shaped like the sample one (facing -Y, left +X), parents first.
+
+    Spine hips - spine - spine.001 - chest, neck - neck.001 - head off the chest, a 6-bone
+    tail off the hips, front legs upper_arm - forearm - front_paw, hind legs thigh - shin -
+    hind_foot - hind_paw.
+    """
+    spine = [(0, 0.45, 0.80), (0, 0.25, 0.83), (0, 0.05, 0.84), (0, -0.15, 0.83),
+             (0, -0.35, 0.82)]
+    neck = [(0, -0.35, 0.82), (0, -0.45, 0.95), (0, -0.52, 1.08), (0, -0.78, 1.02)]
+    tail = [(0.0, 0.45 + 0.12 * i, 0.80 + 0.05 * i - 0.012 * i * i) for i in range(7)]
+    rows: list[tuple[str, str | None, tuple, tuple]] = []
+
+    def chain(names, pts, parent):
+        for k, name in enumerate(names):
+            rows.append((name, parent if k == 0 else names[k - 1], pts[k], pts[k + 1]))
+
+    chain(["hips", "spine", "spine.001", "chest"], spine, None)
+    chain(["neck", "neck.001", "head"], neck, "chest")
+    chain([f"tail.{i:03d}" for i in range(6)], tail, "hips")
+    for side, sx in (("L", 1.0), ("R", -1.0)):
+        front = [(0.11 * sx, -0.28, 0.76), (0.12 * sx, -0.22, 0.45), (0.12 * sx, -0.26, 0.08),
+                 (0.12 * sx, -0.36, 0.02)]
+        hind = [(0.11 * sx, 0.42, 0.76), (0.12 * sx, 0.30, 0.48), (0.12 * sx, 0.42, 0.22),
+                (0.12 * sx, 0.38, 0.05), (0.12 * sx, 0.30, 0.02)]
+        chain([f"upper_arm.{side}", f"forearm.{side}", f"front_paw.{side}"], front, "chest")
+        chain([f"thigh.{side}", f"shin.{side}", f"hind_foot.{side}", f"hind_paw.{side}"],
+              hind, "hips")
+    order = {r[0]: i for i, r in enumerate(rows)}
+    heads = np.array([r[2] for r in rows], float)
+    tails = np.array([r[3] for r in rows], float)
+    n = len(rows)
+    frames = np.stack([frame_along(t - h, 0.1 * i)
+                       for i, (h, t) in enumerate(zip(heads, tails, strict=True))])
+    return Skeleton(
+        names=tuple(r[0] for r in rows),
+        parents=np.array([order[r[1]] if r[1] else -1 for r in rows]),
+        rest_heads=heads, rest_tails=tails, rest_frames=frames,
+        inherit_rotation=np.ones(n, bool), connected=np.ones(n, bool), deform=np.ones(n, bool))
+
+
+def _knee_angle(heads, tails, sk, upper, lower) -> float:
+    """Angle (degrees) between two bones' directions."""
+    a = tails[sk.index(upper)] - heads[sk.index(upper)]
+    b = tails[sk.index(lower)] - heads[sk.index(lower)]
+    return float(np.degrees(np.arccos(a @ b / np.linalg.norm(a) / np.linalg.norm(b))))
+
+
+def test_quadruped_gets_ranges_from_its_rig():
+    from gesture_pose.core.stick.figure import (
+        CHAIN_BEND,
+        bone_chains,
+        chain_kind,
+        character_figure,
+    )
+    sk = quadruped_skeleton()
+    fig, humanoid = character_figure(sk)
+    assert not humanoid
+    use = np.ones(sk.n_bones, bool)
+    kinds = {}
+    for c in bone_chains(sk, use, sk.index("hips")):
+        below = any(c[-1] in sk.ancestors(k)[1:] for k in range(sk.n_bones))
+        kinds[sk.names[c[0]]] = (chain_kind(sk, c, below, np.array([0, 0, 1.0]), 0.02, 1.06),
+                                 len(c))
+    assert kinds == {"spine": ("trunk", 3), "neck": ("neck", 3), "tail.000": ("tail", 6),
+                     "upper_arm.L": ("leg", 3), "upper_arm.R": ("leg", 3),
+                     "thigh.L": ("leg", 4), "thigh.R": ("leg", 4)}
+    groups = {g.name: g for g in fig.groups}
+    lateral = np.array([1.0, 0.0, 0.0])
+    # Knees, hocks and the front elbows are hinges about the lateral axis (the sagittal
+    # plane's normal), flexing 140 degrees the way they bend at rest and 20 the other.
+    for name in ("forearm.L", "shin.R", "hind_foot.L"):
+        g = groups[name]
+        assert g.bounds.shape == (1, 2)
+        world_axis = sk.rest_frames[g.bones[0]] @ g.bases[0][:, 0]
+        assert abs(world_axis @ lateral) > 0.99
+        assert np.allclose(np.degrees(g.bounds[0]), [-20.0, 140.0])
+    # Shoulders and hips swing in the sagittal plane more than they spread or twist.
+    hip = np.degrees(groups["thigh.L"].bounds)
+    assert hip[0, 1] == 100.0 and np.all(np.abs(hip[1:]) <= 45.0)
+    # Spine, neck and tail: a chain's segments share its total bend.
+    for name, kind, k in (("spine.001", "trunk", 3), ("neck.001", "neck", 3),
+                          ("tail.003", "tail", 6)):
+        b = np.degrees(groups[name].bounds)
+        assert np.isclose(b[0, 1] * k, CHAIN_BEND[kind][0])
+        assert np.isclose(b[1, 1] * k, CHAIN_BEND[kind][1])
+    total = sum(np.degrees(groups[f"tail.{i:03d}"].bounds[0, 1]) for i in range(6))
+    assert np.isclose(total, 180.0)
+    # The comfort prior keeps the unit of the old +-90 degree balls (it does not pull a
+    # 30-degree segment range harder towards rest).
+    assert np.allclose(np.degrees(groups["tail.003"].comfort), [90.0, 45.0, 90.0])
+    assert np.allclose(np.degrees(groups["shin.L"].comfort), [90.0])
+    # A positive angle flexes: the hind knee at its upper limit bends further than at rest,
+    # at its lower one it straightens a little only (20 degrees).
+    model = PoseModel(sk, fig, Pose.identity(sk.n_bones))
+    lo, hi = model.bounds(sk.rest_heads[0], 0.1).T
+    j = 6 + sum(g.bounds.shape[0] for g in fig.groups[:[g.name for g in fig.groups]
+                                                      .index("shin.L")])
+    rest = _knee_angle(sk.rest_heads, sk.rest_tails, sk, "thigh.L", "shin.L")
+    bent = []
+    for value in (lo[j], hi[j]):
+        x = np.zeros(model.n_genes)
+        x[j] = value
+        heads, tails, _ = model.forward(x[None])
+        bent.append(_knee_angle(heads[0], tails[0], sk, "thigh.L", "shin.L"))
+    assert bent[1] > rest + 100.0
+    assert abs(bent[0] - rest) < 21.0
+
+
+def test_ik_limits_take_precedence_over_default_ranges():
+    from gesture_pose.core.stick.figure import character_figure
+    for sk in (quadruped_skeleton(), humanoid_skeleton()):
+        limits = np.full((sk.n_bones, 3, 2), np.nan)
+        b = sk.index("shin.L")
+        limits[b, 0] = np.radians([-10.0, 95.0])
+        limits[b, 2] = np.radians([-5.0, 5.0])
+        fig, _ = character_figure(sk, limits)
+        g = next(g for g in fig.groups if g.name == "shin.L")
+        assert np.allclose(g.bases[0], np.eye(3)) and g.comfort is None
+        assert np.allclose(np.degrees(g.bounds), [[-10.0, 95.0], [-120.0, 120.0], [-5, 5]])
+        other = next(g for g in fig.groups if g.name == "shin.R")
+        assert other.bounds.shape == (1, 2)  # unlimited bones keep their default hinge

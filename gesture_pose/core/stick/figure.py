@@ -83,12 +83,15 @@ class GeneGroup:
         bones: Bone indices, shape ``(k,)``.
         bases: Local axes of the genes per bone, shape ``(k, 3, m)`` (orthonormal columns).
         bounds: Gene bounds in radians, shape ``(m, 2)``.
+        comfort: Unit of the comfort term per gene in radians, shape ``(m,)``; None: the
+            range's half-width.
     """
 
     name: str
     bones: np.ndarray
     bases: np.ndarray
     bounds: np.ndarray
+    comfort: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -207,16 +210,21 @@ def _ball(skeleton: Skeleton, bone: int, axis: np.ndarray, bounds_deg) -> tuple:
     return skeleton.rest_frames[bone].T @ world, np.radians(np.asarray(bounds_deg, float))
 
 
-def _group(name, skeleton, bones, basis_bounds, ik_limits) -> GeneGroup:
-    """A gene group, replaced by the rig's IK limits when the bone has any."""
+def _group(name, skeleton, bones, basis_bounds, ik_limits, comfort=None) -> GeneGroup:
+    """A gene group, replaced by the rig's IK limits when the bone has any.
+
+    ``comfort`` (radians, ``(m,)``) is kept with the default range only: with IK limits
+    the comfort unit is their half-width.
+    """
     bones = np.asarray(bones, int)
     basis, bounds = basis_bounds
     if ik_limits is not None and len(bones) == 1 and np.any(np.isfinite(ik_limits[bones[0]])):
         lim = ik_limits[bones[0]]
         bounds = np.where(np.isfinite(lim), lim, np.radians([[-120.0, 120.0]] * 3))
-        basis = np.eye(3)
+        basis, comfort = np.eye(3), None
     bases = np.broadcast_to(basis, (len(bones),) + basis.shape).copy()
-    return GeneGroup(name, bones, bases, np.asarray(bounds, float))
+    return GeneGroup(name, bones, bases, np.asarray(bounds, float),
+                     None if comfort is None else np.asarray(comfort, float))
 
 
 def humanoid_figure(skeleton: Skeleton, ik_limits: np.ndarray | None = None,
@@ -331,8 +339,10 @@ def topology_figure(skeleton: Skeleton, ik_limits: np.ndarray | None = None,
     The root bone's head is the root joint; every bone adds a joint at its tail, drawn from
     its parent's joint (the offset of an unconnected bone, like a hip, is folded into its
     edge). Bones shorter than ``min_fraction`` of the character's height are merged into
-    their children. Every bone but the root is a ball joint of +-90 degrees (+-45 of
-    twist), or the rig's IK limits where set. Joints are named after their bones.
+    their children. Every bone but the root gets the rig's IK limits where set and
+    otherwise the default range of its chain (:func:`topology_ranges`: legs hinge in the
+    sagittal plane, spine, neck and tail segments share a plausible total bend). Joints
+    are named after their bones.
 
     Args:
         skeleton: Rest skeleton.
@@ -381,17 +391,144 @@ def topology_figure(skeleton: Skeleton, ik_limits: np.ndarray | None = None,
         bones.append(i)
         tails.append(True)
         parents.append(parent_joint)
-    groups = []
-    for i in range(skeleton.n_bones):
-        if use[i] and i != root:
-            groups.append(_group(skeleton.names[i], skeleton, [i],
-                                 (np.eye(3), np.radians([[-90, 90], [-45, 45], [-90, 90]])),
-                                 ik_limits))
+    forward = np.array([0.0, -1.0, 0.0])
+    # The comfort prior keeps the unit of a +-90 degree ball (+-45 of twist): narrower
+    # default ranges limit the pose, they do not pull it harder towards the rest pose.
+    groups = [_group(skeleton.names[i], skeleton, [i], basis_bounds, ik_limits,
+                     np.radians([90.0, 45.0, 90.0])[:basis_bounds[1].shape[0]])
+              for i, basis_bounds in topology_ranges(skeleton, use, root, forward, up)]
     return CharacterFigure(
         joint_names=tuple(names), joint_parents=np.array(parents),
         joint_bones=np.array(bones), joint_at_tail=np.array(tails),
         optional=np.zeros(len(names), bool), root_bone=root, groups=tuple(groups),
-        forward=np.array([0.0, -1.0, 0.0]), up=up)
+        forward=forward, up=up)
+
+
+#: Default total bend and twist (degrees) of a chain spread over its segments.
+CHAIN_BEND = {"trunk": (60.0, 40.0), "neck": (90.0, 60.0), "tail": (180.0, 90.0)}
+
+
+def bone_chains(skeleton: Skeleton, use: np.ndarray, root: int) -> list[list[int]]:
+    """Unbranched runs of used bones below the root, each top first.
+
+    A chain starts at a bone whose parent is the root or has several used children and
+    continues while its last bone has exactly one used child.
+
+    Args:
+        skeleton: The skeleton.
+        use: Bones taking part, shape ``(n,)``.
+        root: The root bone (not in any chain).
+
+    Returns:
+        The chains, parents first.
+    """
+    parent = np.array([next((a for a in skeleton.ancestors(i)[1:] if use[a]), -1)
+                       for i in range(skeleton.n_bones)])
+    kids = [[k for k in range(skeleton.n_bones) if use[k] and parent[k] == i]
+            for i in range(skeleton.n_bones)]
+    chains = []
+    for i in range(skeleton.n_bones):
+        if not use[i] or i == root or not (parent[i] == root or len(kids[parent[i]]) != 1):
+            continue
+        chain = [i]
+        while len(kids[chain[-1]]) == 1:
+            chain.append(kids[chain[-1]][0])
+        chains.append(chain)
+    return chains
+
+
+def chain_kind(skeleton: Skeleton, chain: list[int], has_children: bool, up: np.ndarray,
+               ground: float, height: float) -> str:
+    """``"leg"``, ``"trunk"``, ``"neck"``, ``"tail"`` or ``"other"`` from the rest shape.
+
+    A leg starts downward (within 60 degrees of down) and ends within 15 % of the height
+    above the lowest point; a chain with bones below its end is the trunk; a free chain of
+    four or more bones is a tail (or a tentacle); a shorter free one pointing up a neck.
+    """
+    d = normalize(skeleton.rest_tails[chain[0]] - skeleton.rest_heads[chain[0]])
+    end = min(float(skeleton.rest_tails[chain[-1]] @ up), float(skeleton.rest_heads[chain[-1]]
+                                                                 @ up))
+    if d @ up < -0.5 and end - ground < 0.15 * height and not has_children:
+        return "leg"
+    if has_children:
+        return "trunk"
+    if len(chain) >= 4:
+        return "tail"
+    return "neck" if d @ up > 0.3 else "other"
+
+
+def _hinge_sign(skeleton: Skeleton, parent: int, bone: int, lateral: np.ndarray) -> float:
+    """The sense (+1, -1) about ``lateral`` of the rest bend at ``bone``.
+
+    Returns:
+        +1 or -1; 0 when the two bones are straight at rest (within 5 degrees).
+    """
+    d1 = normalize(skeleton.rest_tails[parent] - skeleton.rest_heads[parent])
+    d2 = normalize(skeleton.rest_tails[bone] - skeleton.rest_heads[bone])
+    c = np.cross(d1, d2) @ lateral
+    return float(np.sign(c)) if abs(c) > np.sin(np.radians(5.0)) else 0.0
+
+
+def topology_ranges(skeleton: Skeleton, use: np.ndarray, root: int, forward: np.ndarray,
+                    up: np.ndarray) -> list[tuple[int, tuple[np.ndarray, np.ndarray]]]:
+    """Default gene bases and ranges of motion of a character that is not a humanoid.
+
+    The bones are cut into unbranched chains (:func:`bone_chains`), classified from their
+    rest shape (:func:`chain_kind`):
+
+    - **legs** move mostly in the sagittal plane (the plane of ``forward`` and ``up``): the
+      top bone is a ball swinging +-100 degrees about the lateral axis, abducting +-45 and
+      twisting +-30; the middle bones are hinges about the lateral axis, turned so that a
+      positive angle deepens their rest bend, flexing -20..140 degrees (+-120 when
+      straight at rest); the last one
+      (paw, hoof) flexes +-60 and turns +-15;
+    - **trunk, neck and tail** segments bend about both axes across the bone and twist by
+      the chain's total (``CHAIN_BEND``: spine 60/40, neck 90/60, tail or tentacle 180/90
+      degrees) over its number of segments, so the whole chain bends plausibly however
+      finely it is cut;
+    - anything else is a ball of +-90 degrees (+-45 of twist).
+
+    Args:
+        skeleton: Rest skeleton (world space).
+        use: Bones taking part, shape ``(n,)``.
+        root: The root bone (free; not returned).
+        forward: The character's facing, shape ``(3,)``.
+        up: World up, shape ``(3,)``.
+
+    Returns:
+        ``(bone, (basis, bounds))`` per used bone but the root, in bone order: basis in the
+        bone's local frame, shape ``(3, m)``; bounds in radians, shape ``(m, 2)``.
+    """
+    pts = np.concatenate([skeleton.rest_heads, skeleton.rest_tails]) @ up
+    ground, height = float(pts.min()), float(np.ptp(pts))
+    lateral = normalize(np.cross(forward, up))
+    out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    chains = bone_chains(skeleton, use, root)
+    for chain in chains:
+        below = any(use[k] and chain[-1] in skeleton.ancestors(k)[1:]
+                    for k in range(skeleton.n_bones))
+        kind = chain_kind(skeleton, chain, below, up, ground, height)
+        k = len(chain)
+        for pos, b in enumerate(chain):
+            if kind == "leg":
+                if pos == 0:
+                    out[b] = _ball(skeleton, b, lateral, [[-100, 100], [-30, 30], [-45, 45]])
+                elif pos == k - 1 and k >= 3:
+                    out[b] = _ball(skeleton, b, lateral, [[-60, 60], [-15, 15], [-15, 15]])
+                else:
+                    # The axis turned so that a positive angle deepens the rest bend.
+                    sign = _hinge_sign(skeleton, chain[pos - 1], b, lateral)
+                    lim = [-120.0, 120.0] if sign == 0 else [-20.0, 140.0]
+                    basis, _ = _ball(skeleton, b, (sign or 1.0) * lateral, [[0, 0]] * 3)
+                    out[b] = (basis[:, :1], np.radians([lim]))
+            elif kind in CHAIN_BEND:
+                bend, twist = (v / k for v in CHAIN_BEND[kind])
+                out[b] = (np.eye(3), np.radians([[-bend, bend], [-twist, twist],
+                                                 [-bend, bend]]))
+            else:
+                out[b] = (np.eye(3), np.radians([[-90, 90], [-45, 45], [-90, 90]]))
+    return [(b, out.get(b, (np.eye(3), np.radians([[-90, 90], [-45, 45], [-90, 90]]))))
+            for b in range(skeleton.n_bones) if use[b] and b != root]
 
 
 def character_figure(skeleton: Skeleton, ik_limits: np.ndarray | None = None

@@ -170,8 +170,10 @@ def _lift(model: PoseModel, X: np.ndarray, bounds: np.ndarray, stick: StickFigur
             else:
                 R = rotation_between(np.broadcast_to(y, want.shape), want)
                 if k in hinge_child:
-                    R = _twisted(model, groups, hinge_child[k], b, frames, base,
-                                 heads[:, b], target, rays, bits[:, hinge_child[k]], R)
+                    c = hinge_child[k]
+                    R = _twisted(model, groups, c, b, frames, base, heads[:, b], target,
+                                 rays, bits[:, c], R, B, bounds[start:start + m],
+                                 bounds[groups[c][1]])
                 g = log_map(R) @ B
             X[:, start:start + m] = np.clip(g, bounds[start:start + m, 0],
                                             bounds[start:start + m, 1])
@@ -180,26 +182,49 @@ def _lift(model: PoseModel, X: np.ndarray, bounds: np.ndarray, stick: StickFigur
 
 def _twisted(model: PoseModel, groups: list, c: int, b: int, frames: np.ndarray,
              base: np.ndarray, head: np.ndarray, target: np.ndarray, rays: tuple,
-             far: np.ndarray, smallest: np.ndarray) -> np.ndarray:
+             far: np.ndarray, smallest: np.ndarray, basis: np.ndarray,
+             ball_bounds: np.ndarray, hinge_bounds: np.ndarray) -> np.ndarray:
     """Rotations ``E`` (``(n, 3, 3)``) of ball bone ``b`` aiming it at ``target``.
 
     The twist puts the axis of its lifted hinge child (lifted group ``c``, its end on the
-    near or ``far`` side) normal to the plane of the two bones, so that flexing the hinge
-    (a positive turn about its axis) moves the child towards its own target. Where the
+    near or ``far`` side) normal to the plane of the two bones, so that turning the hinge
+    moves the child towards its own target. A hinge that can also straighten past its
+    rest bend (``hinge_bounds`` ``(2,)`` below 0, a quadruped's knee) has two normals:
+    each individual takes the one whose ball genes (``basis`` ``(3, m)``, ``ball_bounds``
+    ``(m, 2)``) and hinge angle leave their ranges least (a ball of little twist cannot
+    turn the hinge's axis round). Where the
     bones are aligned (no plane) the smallest rotation ``smallest`` is kept.
     """
     gi, _, _, length = groups[c]
+    sk = model.skeleton
     cb = int(model.figure.groups[gi].bones[0])
     axis_c = model.figure.groups[gi].bases[0][:, 0]
     # The child's hinge axis in b's posed frame (unchanged when b turns), then in world.
     F_b = frames[:, b]
     ell = np.einsum("pji,pjk,k->pi", F_b, frames[:, cb], axis_c)
     end = _ray_sphere(rays[0][c][None], rays[1][c][None], target, length, far)
-    n = np.cross(target - head, end - target)
-    ok = np.linalg.norm(n, axis=1) > 1e-6 * np.linalg.norm(target - head, axis=1) * np.maximum(
-        np.linalg.norm(end - target, axis=1), 1e-12)
-    want = np.einsum("pji,pj->pi", base, target - head)
-    n_base = np.einsum("pji,pj->pi", base, n)
+    u, v = target - head, end - target
+    n = np.cross(u, v)
+    ok = np.linalg.norm(n, axis=1) > 1e-6 * np.linalg.norm(u, axis=1) * np.maximum(
+        np.linalg.norm(v, axis=1), 1e-12)
+    want = np.einsum("pji,pj->pi", base, u)
     y = np.broadcast_to([0.0, 1.0, 0.0], want.shape)
-    R = _frame(want, n_base) @ np.swapaxes(_frame(y, ell), 1, 2)
-    return np.where(ok[:, None, None], R, smallest)
+    # Bend of the drawn pair, and the hinge's rest bend about its own axis.
+    bend = np.arctan2(np.linalg.norm(n, axis=1), np.sum(u * v, 1))
+    d1 = sk.rest_tails[b] - sk.rest_heads[b]
+    d2 = sk.rest_tails[cb] - sk.rest_heads[cb]
+    a = sk.rest_frames[cb] @ axis_c
+    rest = np.arctan2(np.cross(d1, d2) @ a, d1 @ d2)
+    best, cost = smallest, np.full(len(want), np.inf)
+    # A hinge that only flexes from its rest (a humanoid's elbow or knee) takes the first.
+    for sign in (1.0, -1.0) if hinge_bounds[0] < 0.0 else (1.0,):
+        n_base = np.einsum("pji,pj->pi", base, sign * n)
+        R = _frame(want, n_base) @ np.swapaxes(_frame(y, ell), 1, 2)
+        g = log_map(R) @ basis
+        theta = sign * bend - rest
+        out = (np.sum(np.abs(g - np.clip(g, ball_bounds[:, 0], ball_bounds[:, 1])), 1)
+               + np.abs(theta - np.clip(theta, hinge_bounds[0], hinge_bounds[1])))
+        better = out < cost - 1e-9
+        best = np.where(better[:, None, None], R, best)
+        cost = np.where(better, out, cost)
+    return np.where(ok[:, None, None], best, smallest)

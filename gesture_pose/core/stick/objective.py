@@ -16,7 +16,9 @@ weights 1.0, 0.5 and 5.0:
   environment's distance grid, in units of 5 % of the height.
 - ``E_com`` (joint comfort, our addition, weight 0.002): per gene group (a shoulder, an
   elbow, the spine...) the mean of ``((g - g_0) / h)^2`` over its rotation genes, ``g_0``
-  the rest pose clipped into the range of motion and ``h`` the range's half-width. It is
+  the rest pose clipped into the range of motion and ``h`` the range's half-width (or the
+  group's own ``comfort`` unit: a non-humanoid's defaults keep that of a +-90 degree
+  ball). It is
   too weak to move a pose off the drawing (a 30-degree turn costs what a 1-degree error
   of one drawn edge does) but decides between depth interpretations that fit the drawing
   equally well and fixes the rotations the drawing does not see (twists along bones).
@@ -222,7 +224,9 @@ class StickObjective:
         groups = self.model.figure.groups
         m = np.array([g.bounds.shape[0] for g in groups], int)
         b = np.concatenate([g.bounds for g in groups]).reshape(-1, 2)
-        half = np.maximum(0.5 * (b[:, 1] - b[:, 0]), 1e-6)
+        half = np.concatenate([0.5 * (g.bounds[:, 1] - g.bounds[:, 0]) if g.comfort is None
+                               else g.comfort for g in groups])
+        half = np.maximum(half, 1e-6)
         object.__setattr__(self, "_comfort_ref", np.clip(0.0, b[:, 0], b[:, 1]))
         # sqrt(w / m) / h: each group counts once, whatever its number of genes.
         object.__setattr__(self, "_comfort_scale",

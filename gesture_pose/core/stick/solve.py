@@ -48,6 +48,16 @@ HOPELESS_MARGIN = 0.05
 DISTINCT = 0.04
 #: Half-width of the root's box (fraction of the height) with neither seat nor pins.
 FREE_ROOT_RANGE = 0.15
+#: The same for a horizontal body (a quadruped): its legs, nearer or farther than its
+#: root, make the depth read from the drawing's scale less certain.
+FREE_ROOT_RANGE_HORIZONTAL = 0.3
+
+
+def _upright(figure: CharacterFigure, skeleton: Skeleton) -> bool:
+    """Whether the body's main axis (root to :func:`spine_joint`) is across its facing."""
+    rest = figure.joint_positions(skeleton.rest_heads, skeleton.rest_tails)
+    spine = normalize(rest[spine_joint(figure)] - rest[0])
+    return bool(abs(spine @ figure.forward) < 0.7)
 #: Distinct individuals of the genetic search refined before their depth flips are tried.
 GA_SEEDS = 3
 #: Refined individuals whose depth flips are tried.
@@ -234,15 +244,30 @@ def _initial_population(model: PoseModel, bounds: np.ndarray, n: int, stick: Sti
     rest = fig.joint_positions(sk.rest_heads, sk.rest_tails)
     top = spine_joint(fig)
     spine_rest = normalize(rest[top] - rest[0])
+    upright = _upright(fig, sk)
+    if not upright:
+        # A horizontal body's legs, nearer or farther than its root, bias the depth read
+        # from the drawing's scale: spread the roots along the eye ray over the box.
+        o, ray = camera.rays(stick.points[:1])
+        half = 0.5 * float(np.min(bounds[:3, 1] - bounds[:3, 0]))
+        pop[:, :3] += ray[0] * rng.uniform(-half, half, size=(n, 1))
     s2 = stick.points[top] - stick.points[0]
     s2 = s2 / max(np.linalg.norm(s2), 1e-9)
     V = camera.view_matrix[:3, :3]
     right, up, back = V[0], V[1], V[2]
-    z = rng.normal(scale=0.6, size=n)
+    # The spine's depth: an upright body's is mostly in the view plane; a horizontal one
+    # (a quadruped's) points anywhere up to 75 degrees out of it.
+    z = (rng.normal(scale=0.6, size=n) if upright
+         else np.tan(rng.uniform(-1.3, 1.3, size=n)))
     d = normalize(s2[0] * right + s2[1] * up + z[:, None] * back)
     G0 = rotation_between(spine_rest, d)
-    fwd = G0 @ fig.forward
-    want = back if facing == "front" else -back  # towards the viewer
+    # The roll about the spine: the front faces the viewer or, for a body whose spine
+    # runs along its facing (a quadruped), its back stays up in the view.
+    if upright:
+        fwd = G0 @ fig.forward
+        want = back if facing == "front" else -back  # towards the viewer
+    else:
+        fwd, want = G0 @ fig.up, up
     want = normalize(want - d * (d @ want)[:, None])
     fwd = normalize(fwd - d * np.sum(fwd * d, 1)[:, None])
     psi = np.arctan2(np.sum(np.cross(fwd, want) * d, 1), np.sum(fwd * want, 1))
@@ -372,7 +397,8 @@ def _solve(inp: StickInput) -> StickResult:
         else:
             # Nothing else fixes the depth (a nearer figure with more foreshortened limbs
             # reprojects as well): keep the root near the drawing's scale.
-            root_range = FREE_ROOT_RANGE * height
+            root_range = (FREE_ROOT_RANGE if _upright(figure, sk)
+                          else FREE_ROOT_RANGE_HORIZONTAL) * height
         root = cam.unproject_at_depth(stick.points[pelvis_j][None], depth)[0]
         if env is not None and len(env.triangles):
             grid = distance_grid(env, root, 0.75 * height)
