@@ -302,6 +302,7 @@ def _enumerate_terminals(problem, base, contour: list[JointCandidates],
         return conf, count
     got = assign_contours(base, result)
     e_new = joint_energy(problem, result)[0]
+    energy = joint_energy(problem, conf)[0]
     meets = not got.overlaps and got.coverage >= params.min_coverage
     pen = params.overlap_penalty
     fewer = (e_new + pen * len(got.overlaps) < energy + pen * len(assign.overlaps)
@@ -325,6 +326,24 @@ def _held_by_others(problem, assign, j: int, n_samples: int) -> np.ndarray:
         if k not in near:
             held[samples] = True
     return held
+
+
+def _resolves(new: tuple[int, float, float], old: tuple[int, float, float], params) -> bool:
+    """Whether an overlap-blocking re-solve replaces the best solution so far.
+
+    Both are ``(overlaps, coverage, energy)`` with the energy of the unblocked problem.
+    Blocking helps when a part was folded onto another part's contour, which leaves some
+    of the drawing unexplained: the re-solve must lower the energy counting
+    ``overlap_penalty`` per overlap, and either explain ``coverage_gain`` more of the
+    drawing or cost at most ``symmetric_tolerance`` more energy. Limbs that really overlap
+    in the view (the legs of a step seen at 3/4) share contours however they are placed;
+    blocking then only moves a correct limb to a worse fit, which this rejects.
+    """
+    pen = params.overlap_penalty
+    if new[2] + pen * new[0] >= old[2] + pen * old[0]:
+        return False
+    return (new[1] >= old[1] + params.coverage_gain
+            or new[2] <= old[2] + params.symmetric_tolerance)
 
 
 def _with_rigid(problem, cands: list[JointCandidates], turns: tuple[float, ...] = (),
@@ -429,9 +448,9 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
     for rounds in range(params.max_terminal_rounds + 1):
         assign = assign_contours(base, conf)
         n_bad = len(assign.overlaps)
-        score = energy + params.overlap_penalty * n_bad
-        key = (n_bad, -round(assign.coverage, 2), score)
-        if best_sol is None or key < best_sol[0]:
+        plain = joint_energy(base, conf)[0]
+        key = (n_bad, assign.coverage, plain)
+        if best_sol is None or _resolves(key, best_sol[0], params):
             best_sol = (key, conf, problem, fine_sets, energy)
         if n_bad == 0 and assign.coverage >= params.min_coverage:
             break
