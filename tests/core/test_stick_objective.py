@@ -234,3 +234,34 @@ def test_least_squares_refinement_converges_faster_than_lbfgs():
     assert gn.energy < lb.energy - 0.02
     longer = refine_least_squares(obj, gn.x, bounds, max_iterations=60)
     assert gn.energy - longer.energy < 1e-3 * gn.energy  # already converged
+
+
+def test_a_lying_leg_lowers_its_ankle_pin_to_the_shin_and_heel():
+    from gesture_pose.core.stick.finish import _clearance, _lie_on_chain
+
+    obj, _ = problem(np.random.default_rng(2))
+    model, fig, sk = obj.model, obj.model.figure, obj.model.skeleton
+    ankle = fig.joint("ankle.L")
+    pin = EnvPin(ankle, np.array([0.1, 0.0, 0.09]), np.array([0.0, 0.0, 1.0]), True)
+    # Standing (rest): the shin stands on its foot, the standing height is kept.
+    assert _lie_on_chain(obj, np.zeros(model.n_genes), pin) is pin
+    # Lying on the back: the shin lies along the floor and holds the ankle lower.
+    x = np.zeros(model.n_genes)
+    x[3] = -np.pi / 2
+    heads, tails, _ = model.forward(x[None])
+    shin = tails[0, sk.index("shin.L")] - heads[0, sk.index("shin.L")]
+    assert abs(shin[2]) < 0.2 * np.linalg.norm(shin)  # within 12 degrees of the floor
+    now = _clearance(obj, heads, tails, ankle, pin.normal)[0]
+    rest = _clearance(obj, sk.rest_heads[None], sk.rest_tails[None], ankle, pin.normal)[0]
+    foot = sk.index("foot.L")
+    assert np.isclose(rest, sk.rest_heads[foot, 2] - min(
+        (np.minimum(s[:, 2], e[:, 2]) - obj.capsules.radii)[np.isin(
+            obj.capsules.bones, [foot, sk.index("shin.L")])].min()
+        for s, e in [obj.capsules.segments(sk.rest_heads, sk.rest_tails)]))
+    assert now < rest - 0.02
+    moved = _lie_on_chain(obj, x, pin)
+    assert moved.stands and np.allclose(moved.normal, pin.normal)
+    assert np.isclose(moved.target[2] - pin.target[2], now - rest)
+    # Still on the eye ray through the drawn ankle.
+    assert np.allclose(obj.camera.project(moved.target[None])[0], obj.stick.points[ankle],
+                       atol=1e-6)

@@ -58,11 +58,15 @@ class EnvPin:
         joint: Stick joint index.
         target: Contact point the joint is placed on at the end, shape ``(3,)``.
         normal: Unit normal of the contact plane, shape ``(3,)``.
+        stands: The joint stands on the short chain below it (an ankle on its foot): its
+            height above the surface follows that chain's orientation (see
+            :func:`~gesture_pose.core.stick.finish.finish_pose`).
     """
 
     joint: int
     target: np.ndarray
     normal: np.ndarray
+    stands: bool = False
 
 
 @dataclass(frozen=True)

@@ -98,7 +98,22 @@ def pin_offsets(figure: CharacterFigure, skeleton: Skeleton, caps: Capsules,
     bench, a head top) it is the capsule radius of the joint's bone or its parent,
     whichever is larger.
     """
+    return _offsets(figure, skeleton, caps, vertices, weights)[0]
+
+
+def standing_joints(figure: CharacterFigure, skeleton: Skeleton, caps: Capsules,
+                    vertices: np.ndarray | None = None,
+                    weights: np.ndarray | None = None) -> np.ndarray:
+    """Joints whose :func:`pin_offsets` is the rest height over the chain below, ``(J,)``."""
+    return _offsets(figure, skeleton, caps, vertices, weights)[1]
+
+
+def _offsets(figure: CharacterFigure, skeleton: Skeleton, caps: Capsules,
+             vertices: np.ndarray | None, weights: np.ndarray | None
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets ``(J,)`` of :func:`pin_offsets` and which joints stand, ``(J,)``."""
     up = figure.up
+    stands = np.zeros(figure.n_joints, bool)
     radius = np.zeros(skeleton.n_bones)
     radius[caps.bones] = caps.radii
     out = np.zeros(figure.n_joints)
@@ -128,19 +143,23 @@ def pin_offsets(figure: CharacterFigure, skeleton: Skeleton, caps: Capsules,
             out[j] = r
             continue
         out[j] = max(float(p @ up) - low, r)
-    return out
+        stands[j] = True
+    return out, stands
 
 
 def resolve_pins(figure: CharacterFigure, stick: StickFigure,
                  env_specs: tuple[EnvPinSpec, ...], limb_specs: tuple[LimbPinSpec, ...],
-                 offsets: np.ndarray, camera: Camera | None = None
+                 offsets: np.ndarray, camera: Camera | None = None,
+                 standing: np.ndarray | None = None
                  ) -> tuple[tuple[EnvPin, ...], tuple[LimbPin, ...]]:
     """Turn stored pins into objective pins (joint indices, lifted targets).
 
     The target of a joint pinned to a surface lies on the contact plane lifted by the
     joint's offset; when the joint is drawn and ``camera`` is given, it is where the eye
     ray through the drawn joint meets that lifted plane, so that the placed joint still
-    projects onto the drawing.
+    projects onto the drawing. ``standing`` (``(J,)``, from :func:`standing_joints`)
+    marks the joints whose height above the surface the finish adapts to the orientation
+    of the chain below them.
 
     Raises:
         InputError: A pin names a joint the character does not have.
@@ -164,7 +183,7 @@ def resolve_pins(figure: CharacterFigure, stick: StickFigure,
                 t = float((target - o[0]) @ n) / rate
                 if t > 0:
                     target = o[0] + t * d[0]
-        env.append(EnvPin(j, target, n))
+        env.append(EnvPin(j, target, n, bool(standing is not None and standing[j])))
     limbs = tuple(LimbPin(index(s.joint), (index(s.limb[0]), index(s.limb[1])), float(s.s))
                   for s in limb_specs)
     return tuple(env), limbs

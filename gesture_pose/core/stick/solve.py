@@ -35,7 +35,7 @@ from .kinematics import PoseModel
 from .lifting import depth_flips, lift_population
 from .normalize import drawing_scale, normalize_figure
 from .objective import EnvPin, StickObjective, Weights
-from .pins import EnvPinSpec, LimbPinSpec, pin_offsets, resolve_pins
+from .pins import EnvPinSpec, LimbPinSpec, pin_offsets, resolve_pins, standing_joints
 from .ranking import RankWeights, plausibility
 from .refine import RefineResult, refine, refine_least_squares
 from .threads import single_thread_blas
@@ -347,8 +347,9 @@ def _solve(inp: StickInput) -> StickResult:
     model = PoseModel(sk, figure, base)
     caps = _moving_pairs(model, capsules_from_mesh(sk, inp.mesh_vertices, inp.mesh_weights))
     offsets = pin_offsets(figure, sk, caps, inp.mesh_vertices, inp.mesh_weights)
+    standing = standing_joints(figure, sk, caps, inp.mesh_vertices, inp.mesh_weights)
     env_pins, limb_pins = resolve_pins(figure, stick, inp.env_pins, inp.limb_pins, offsets,
-                                       cam)
+                                       cam, standing)
     up = figure.up
     height = float(np.ptp(np.concatenate([sk.rest_heads, sk.rest_tails]) @ up))
     lengths = _edge_lengths(figure, sk)
@@ -487,9 +488,8 @@ def _solve(inp: StickInput) -> StickResult:
     heads, tails, _ = model.forward(xs[order])
     joints = figure.joint_positions(heads, tails)
     keep = order[_distinct(joints, np.arange(len(xs)), inp.n_suggestions, DISTINCT * height)]
-    suggestions = [_suggestion(objective, finish_pose(objective, xs[i], bounds, env_pins,
-                                                      limb_pins), env_pins, float(score[i]),
-                               rank)
+    suggestions = [_suggestion(objective, *finish_pose(objective, xs[i], bounds, env_pins,
+                                                       limb_pins), float(score[i]), rank)
                    for i in keep]
     if not suggestions or not np.isfinite(suggestions[0].energy):
         raise SolverError("The stick figure solver found no finite solution.",
