@@ -210,7 +210,8 @@ def read_stick_scene(context, arm_obj, sketch_obj, snap_radius: float = SNAP_RAD
         raise InputError("Part of the drawing is behind the view: draw in front of the "
                          "camera.")
     figure, _ = character_figure(data.skeleton, data.ik_limits)
-    stick = stick_figure_from_strokes(pts, figure, snap_radius, facing)
+    stick = stick_figure_from_strokes(pts, figure, snap_radius, facing,
+                                      figure.edge_lengths(data.skeleton))
     for pair in sorted(read_swaps(context.scene)):
         stick = stick.swapped(pair)
     depth = float(np.mean(np.concatenate([camera.depth(s.points_world) for s in strokes])))

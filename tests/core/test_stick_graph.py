@@ -177,3 +177,29 @@ def test_symmetric_topology_is_reported_ambiguous():
                if p >= 0]
     with pytest.raises(InputError, match="different ways"):
         stick_figure_from_strokes(strokes, fig, snap_radius=5.0)
+
+
+def test_bone_lengths_tell_apart_chains_of_equal_segments():
+    from gesture_pose.core.camera import Camera
+    from gesture_pose.core.stick.figure import character_figure
+    from tests.core.test_stick_figure import quadruped_skeleton
+    sk = quadruped_skeleton()
+    fig, _ = character_figure(sk)
+    cam = Camera.look_at([3.0, -3.0, 1.8], [0, 0, 0.5], width=960, height=960)
+    px = cam.project(fig.joint_positions(sk.rest_heads, sk.rest_tails))
+    strokes = [np.linspace(px[p], px[c], 5) for c, p in enumerate(fig.joint_parents)
+               if p >= 0]
+    # By topology alone the 3-bone neck and the 3-bone front legs can be exchanged.
+    with pytest.raises(InputError, match="different ways"):
+        stick_figure_from_strokes(strokes, fig, snap_radius=8.0)
+    stick = stick_figure_from_strokes(strokes, fig, snap_radius=8.0,
+                                      lengths=fig.edge_lengths(sk))
+    for name in ("neck", "neck.001", "head", "chest", "tail.005"):
+        assert np.allclose(stick.points[fig.joint(name)], px[fig.joint(name)])
+    # Legs land on drawn legs (left and right may be exchanged: flagged).
+    for side in "LR":
+        other = "R" if side == "L" else "L"
+        got = stick.points[fig.joint(f"front_paw.{side}")]
+        assert min(np.linalg.norm(got - px[fig.joint(f"front_paw.{s}")])
+                   for s in (side, other)) < 1e-6
+    assert stick.ambiguous_sides == ("limbs",)

@@ -134,6 +134,14 @@ class CharacterFigure:
         child = np.flatnonzero(self.joint_parents >= 0)
         return np.stack([self.joint_parents[child], child], 1)
 
+    def edge_lengths(self, skeleton: Skeleton) -> np.ndarray:
+        """Rest 3D length of each stick edge by its child joint (0 at the root), ``(J,)``."""
+        pos = self.joint_positions(skeleton.rest_heads, skeleton.rest_tails)
+        out = np.zeros(self.n_joints)
+        child = np.flatnonzero(self.joint_parents >= 0)
+        out[child] = np.linalg.norm(pos[child] - pos[self.joint_parents[child]], axis=1)
+        return out
+
     def joint_positions(self, heads: np.ndarray, tails: np.ndarray) -> np.ndarray:
         """Joint positions from posed bones, ``(..., n, 3) -> (..., J, 3)``."""
         return np.where(self.joint_at_tail[:, None], tails[..., self.joint_bones, :],

@@ -238,8 +238,30 @@ def _side_value(points: np.ndarray, base: np.ndarray, up: np.ndarray) -> float:
     return float(np.mean(rel[:, 0] * up[1] - rel[:, 1] * up[0]))
 
 
+#: Lengths tell matches apart when the best one's drawing scale is below this fraction
+#: of the next one's.
+LENGTH_MARGIN = 0.8
+
+
+def _drawing_scales(graph: DrawnGraph, figure: CharacterFigure, matches: list[dict],
+                    lengths: np.ndarray) -> np.ndarray:
+    """Per match, the largest drawn length over 3D length of its edges (pixels per unit).
+
+    Foreshortening only shortens a drawn edge, so a match needs at least this scale; a
+    wrong match puts long drawn lines on short bones and needs a larger one.
+    """
+    out = np.zeros(len(matches))
+    for k, m in enumerate(matches):
+        ratios = [np.linalg.norm(graph.nodes[m[t]] - graph.nodes[m[int(p)]]) / lengths[t]
+                  for t, p in enumerate(figure.joint_parents)
+                  if p >= 0 and t in m and int(p) in m and lengths[t] > 1e-9]
+        out[k] = max(ratios, default=0.0)
+    return out
+
+
 def match_figure(graph: DrawnGraph, figure: CharacterFigure, facing: str = "front",
-                 snap_radius: float = SNAP_RADIUS) -> StickFigure:
+                 snap_radius: float = SNAP_RADIUS, lengths: np.ndarray | None = None
+                 ) -> StickFigure:
     """Match a drawn tree to the character's stick joints.
 
     Args:
@@ -248,6 +270,11 @@ def match_figure(graph: DrawnGraph, figure: CharacterFigure, facing: str = "fron
         facing: ``"front"`` (the character faces the viewer, its left on the image's
             right) or ``"back"``.
         snap_radius: Snapping radius in pixels (for messages).
+        lengths: Optional 3D length of each stick edge by its child joint, ``(J,)``. When
+            the drawing fits in ways that differ by more than a left/right exchange, the
+            way needing the smallest drawing scale (:func:`_drawing_scales`) is taken if
+            it is below ``LENGTH_MARGIN`` times the next way's (a quadruped's 3-bone neck
+            and 3-bone front legs differ in their bones' lengths).
 
     Returns:
         The matched stick figure.
@@ -279,7 +306,17 @@ def match_figure(graph: DrawnGraph, figure: CharacterFigure, facing: str = "fron
     # Canonical form up to left/right exchange: side suffixes removed.
     def unsided(m):
         return tuple(sorted((names[t].split(".")[0], d) for t, d in m.items()))
-    if len({frozenset(unsided(m)) for m in matches}) > 1:
+    classes = [frozenset(unsided(m)) for m in matches]
+    if len(set(classes)) > 1 and lengths is not None:
+        scale = _drawing_scales(graph, figure, matches, np.asarray(lengths, float))
+        best = {c: min(scale[k] for k in range(len(matches)) if classes[k] == c)
+                for c in set(classes)}
+        first, second = sorted(best.values())[:2]
+        if first < LENGTH_MARGIN * second:
+            keep = min(best, key=best.get)
+            matches = [m for m, c in zip(matches, classes, strict=True) if c == keep]
+            classes = [keep] * len(matches)
+    if len(set(classes)) > 1:
         swaps = sorted({names[t] for m in matches for t, d in m.items()
                         if any(m2.get(t) != d for m2 in matches)})
         raise InputError(
@@ -320,6 +357,8 @@ def match_figure(graph: DrawnGraph, figure: CharacterFigure, facing: str = "fron
 
 def stick_figure_from_strokes(strokes: Sequence[np.ndarray], figure: CharacterFigure,
                               snap_radius: float = SNAP_RADIUS,
-                              facing: str = "front") -> StickFigure:
+                              facing: str = "front",
+                              lengths: np.ndarray | None = None) -> StickFigure:
     """Strokes in pixels -> matched stick figure (:func:`build_graph` + :func:`match_figure`)."""
-    return match_figure(build_graph(strokes, snap_radius), figure, facing, snap_radius)
+    return match_figure(build_graph(strokes, snap_radius), figure, facing, snap_radius,
+                        lengths)

@@ -176,11 +176,7 @@ class StickResult:
 
 def _edge_lengths(figure: CharacterFigure, skeleton: Skeleton) -> np.ndarray:
     """Rest 3D length of each stick edge indexed by its child joint, ``(J,)``."""
-    pos = figure.joint_positions(skeleton.rest_heads, skeleton.rest_tails)
-    out = np.zeros(figure.n_joints)
-    child = np.flatnonzero(figure.joint_parents >= 0)
-    out[child] = np.linalg.norm(pos[child] - pos[figure.joint_parents[child]], axis=1)
-    return out
+    return figure.edge_lengths(skeleton)
 
 
 def _moving_pairs(model: PoseModel, caps: Capsules) -> Capsules:
@@ -337,7 +333,7 @@ def _solve(inp: StickInput) -> StickResult:
     sk, cam = inp.skeleton, inp.camera
     figure, humanoid = character_figure(sk, inp.ik_limits)
     stick = inp.stick or stick_figure_from_strokes(inp.strokes, figure, inp.snap_radius,
-                                                   inp.facing)
+                                                   inp.facing, figure.edge_lengths(sk))
     warnings = [f"Left and right {p} look alike from this view: use Swap Sides if they are "
                 "wrong." for p in stick.ambiguous_sides]
     if not humanoid:
