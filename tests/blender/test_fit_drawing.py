@@ -25,6 +25,14 @@ def _humanoid():
     return arm, cam
 
 
+def _posed(pose_name: str):
+    """The sample humanoid in a named pose and its camera: ``(armature, core Camera)``."""
+    arm, cam = _humanoid()
+    builders.pose_humanoid(arm, pose_name)
+    bpy.context.view_layer.update()
+    return arm, camera_from_object(cam, bpy.context.scene)
+
+
 def _errors(arm, emb, camera) -> np.ndarray:
     """Joint errors in % of the projected height of the posed figure, ``(J,)``."""
     data = read_armature(arm)
@@ -74,11 +82,8 @@ def test_fit_finds_the_joints_of_traced_poses(registered, pose_name, median_limi
 
 def _fit_traced(pose_name: str):
     """Fit the clean traced contours of a pose; ``(embedding, errors %h, strokes)``."""
-    arm, cam = _humanoid()
-    builders.pose_humanoid(arm, pose_name)
-    bpy.context.view_layer.update()
+    arm, camera = _posed(pose_name)
     sketch = _trace(arm)
-    camera = camera_from_object(cam, bpy.context.scene)
     emb, n_strokes = op.fit_scene_drawing(arm, sketch, camera)
     return emb, _errors(arm, emb, camera), n_strokes
 
@@ -92,9 +97,7 @@ def test_every_joint_within_4_percent(registered, pose_name):
 
 
 def test_fit_operator_writes_only_its_overlay_layer(registered):
-    arm, _cam = _humanoid()
-    builders.pose_humanoid(arm, "step")
-    bpy.context.view_layer.update()
+    arm, camera = _posed("step")
     sketch = _trace(arm)
     user = sketch.data.layers["Lines"].current_frame().drawing
     before = np.array([p.position[:] for s in user.strokes for p in s.points])
@@ -104,7 +107,7 @@ def test_fit_operator_writes_only_its_overlay_layer(registered):
                                                     sketch=sketch.name) == {"FINISHED"}
         fit = sketch.data.layers[op.FIT_LAYER].current_frame().drawing
         n_fit = len(fit.strokes)
-        emb, _ = op.fit_scene_drawing(arm, sketch, camera_from_object(_cam, bpy.context.scene))
+        emb, _ = op.fit_scene_drawing(arm, sketch, camera)
         expected = sum(len(v) for v in op.fit_overlay(emb).values())
         assert n_fit == expected
     user = sketch.data.layers["Lines"].current_frame().drawing
@@ -115,10 +118,7 @@ def test_fit_operator_writes_only_its_overlay_layer(registered):
 
 def test_curve_sketch_from_svg_is_accepted(registered):
     """Vector drawings arrive as curve objects (Blender's SVG importer makes curves)."""
-    arm, cam = _humanoid()
-    builders.pose_humanoid(arm, "reach")
-    bpy.context.view_layer.update()
-    camera = camera_from_object(cam, bpy.context.scene)
+    arm, camera = _posed("reach")
     obj = _curve_sketch(arm, camera)
     emb, n = op.fit_scene_drawing(arm, obj, camera)
     assert n == len(obj.data.splines) == len(op.trace_character(arm, camera).pixels)
@@ -151,10 +151,7 @@ def _curve_points(obj) -> np.ndarray:
 
 def test_curve_sketch_gets_a_fit_overlay_object(registered):
     """A curve sketch cannot hold Grease Pencil strokes: its fit goes to its own object."""
-    arm, cam = _humanoid()
-    builders.pose_humanoid(arm, "step")
-    bpy.context.view_layer.update()
-    camera = camera_from_object(cam, bpy.context.scene)
+    arm, camera = _posed("step")
     sketch = _curve_sketch(arm, camera)
     before = _curve_points(sketch)
     n_objects = len(bpy.data.objects)
