@@ -16,6 +16,22 @@ from gesture_pose.core.stick.kinematics import PoseModel, right_jacobian
 from tests.core.fixtures import chain_skeleton, frame_along
 
 
+def _skeleton(rows: list[tuple[str, str | None, tuple, tuple]], connected: bool) -> Skeleton:
+    """A skeleton from ``(name, parent or None, head, tail)`` rows listed parents first."""
+    order = {r[0]: i for i, r in enumerate(rows)}
+    heads = np.array([r[2] for r in rows], float)
+    tails = np.array([r[3] for r in rows], float)
+    n = len(rows)
+    frames = np.stack([frame_along(t - h, 0.1 * i)
+                       for i, (h, t) in enumerate(zip(heads, tails, strict=True))])
+    return Skeleton(
+        names=tuple(r[0] for r in rows),
+        parents=np.array([order[r[1]] if r[1] else -1 for r in rows]),
+        rest_heads=heads, rest_tails=tails, rest_frames=frames,
+        inherit_rotation=np.ones(n, bool), connected=np.full(n, connected),
+        deform=np.ones(n, bool))
+
+
 def humanoid_skeleton() -> Skeleton:
     """A 1.8 m humanoid facing -Y (left is +X), arms in an A-pose, parents first."""
     bones: list[tuple[str, str | None, tuple, tuple]] = [
@@ -43,17 +59,7 @@ def humanoid_skeleton() -> Skeleton:
             (f"shin.{side}", f"thigh.{side}", knee, ank),
             (f"foot.{side}", f"shin.{side}", ank, ball),
         ]
-    order = {n: i for i, (n, *_) in enumerate(bones)}
-    heads = np.array([b[2] for b in bones], float)
-    tails = np.array([b[3] for b in bones], float)
-    n = len(bones)
-    frames = np.stack([frame_along(t - h, 0.1 * i)
-                       for i, (h, t) in enumerate(zip(heads, tails, strict=True))])
-    return Skeleton(
-        names=tuple(b[0] for b in bones),
-        parents=np.array([order[b[1]] if b[1] else -1 for b in bones]),
-        rest_heads=heads, rest_tails=tails, rest_frames=frames,
-        inherit_rotation=np.ones(n, bool), connected=np.zeros(n, bool), deform=np.ones(n, bool))
+    return _skeleton(bones, connected=False)
 
 
 def test_side_markers():
@@ -171,17 +177,7 @@ def quadruped_skeleton() -> Skeleton:
         chain([f"upper_arm.{side}", f"forearm.{side}", f"front_paw.{side}"], front, "chest")
         chain([f"thigh.{side}", f"shin.{side}", f"hind_foot.{side}", f"hind_paw.{side}"],
               hind, "hips")
-    order = {r[0]: i for i, r in enumerate(rows)}
-    heads = np.array([r[2] for r in rows], float)
-    tails = np.array([r[3] for r in rows], float)
-    n = len(rows)
-    frames = np.stack([frame_along(t - h, 0.1 * i)
-                       for i, (h, t) in enumerate(zip(heads, tails, strict=True))])
-    return Skeleton(
-        names=tuple(r[0] for r in rows),
-        parents=np.array([order[r[1]] if r[1] else -1 for r in rows]),
-        rest_heads=heads, rest_tails=tails, rest_frames=frames,
-        inherit_rotation=np.ones(n, bool), connected=np.ones(n, bool), deform=np.ones(n, bool))
+    return _skeleton(rows, connected=True)
 
 
 def _knee_angle(heads, tails, sk, upper, lower) -> float:
