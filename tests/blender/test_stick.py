@@ -322,3 +322,45 @@ def test_quadruped_is_posed_by_topology_with_its_default_ranges(registered):
         axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
         if np.linalg.norm(axis) > 1e-3:
             assert abs(axis @ g.bases[0][:, 0]) / np.linalg.norm(axis) > 0.999, name
+
+
+def test_pin_joint_offers_and_checks_the_characters_own_joints(registered):
+    from gesture_pose.blender.operators.stick import _search_joints, figure_edges
+    from gesture_pose.blender.read_view import camera_from_object
+    from gesture_pose.core.stick.figure import character_figure
+    from sample_scenes import builders
+
+    arm, mesh = builders.build_quadruped()
+    cam = camera_from_object(builders.add_camera(mesh, direction=(1.0, -1.0, 0.6)),
+                             bpy.context.scene)
+    data = read_armature(arm)
+    fig, _ = character_figure(data.skeleton, data.ik_limits)
+    names, edges = figure_edges(bpy.context, arm.name)
+    assert names == fig.joint_names and "ankle.L" not in names
+    assert len(edges) == len(names) - 1
+    # The search offers the quadruped's joints, filtered by what was typed.
+    op_like = type("Op", (), {"armature": arm.name})()
+    typed = names[-1][:3]
+    offered = _search_joints(op_like, bpy.context, typed)
+    assert names[-1] in offered and all(typed.lower() in o.lower() for o in offered)
+    # Its stick figure, drawn at rest.
+    state = data.skeleton.forward(data.pose)
+    px = cam.project(fig.joint_positions(state.heads[None], state.tails[None])[0])
+    depth = 0.5 * float(cam.depth(state.heads[:1])[0])
+    strokes = [cam.unproject_at_depth(np.linspace(px[p], px[c], 8), depth)
+               for c, p in enumerate(fig.joint_parents) if p >= 0]
+    sketch = builders.add_grease_pencil("Sketch", strokes)
+    joint, limb = names[-1], next(e for e in edges if names[-1] not in e.split(","))
+    with _ops(arm):
+        assert bpy.ops.gesture_pose.pin_joint(armature=arm.name, sketch=sketch.name,
+                                              joint=joint, target="LIMB",
+                                              limb=limb) == {"FINISHED"}
+    _, limb_pins = read_pins(bpy.context.scene)
+    assert [(p.joint, ",".join(p.limb)) for p in limb_pins] == [(joint, limb)]
+    # A humanoid joint name, or a pair that is no edge, is refused and nothing changes.
+    for kwargs, message in (({"joint": "ankle.L"}, "not a joint of this character"),
+                            ({"joint": joint, "limb": f"{names[0]},{joint}"}, "not an edge")):
+        with _ops(arm), pytest.raises(RuntimeError, match=message):
+            bpy.ops.gesture_pose.pin_joint(armature=arm.name, sketch=sketch.name,
+                                           target="LIMB", **{"limb": limb, **kwargs})
+    assert read_pins(bpy.context.scene)[1] == limb_pins

@@ -13,7 +13,7 @@ import time
 import bpy
 import numpy as np
 
-from ...core.exceptions import InputError
+from ...core.exceptions import GesturePoseError, InputError
 from ...core.skeleton import Pose
 from ...core.stick.edit import GLOBAL_RADIUS
 from ...core.stick.figure import HUMANOID_JOINTS, character_figure
@@ -43,9 +43,45 @@ from ..stick_io import (
 )
 from ..write_pose import apply_pose
 
-JOINT_ITEMS = [(n, n, f"Stick joint {n}") for n, _, _ in HUMANOID_JOINTS]
-LIMB_ITEMS = [(f"{p},{n}", f"{p} - {n}", f"Stick edge from {p} to {n}")
-              for n, p, _ in HUMANOID_JOINTS if p]
+HUMANOID_JOINT_NAMES = tuple(n for n, _, _ in HUMANOID_JOINTS)
+
+
+def figure_edges(context, armature: str = "") -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The stick joints of the character and its edges as ``"parent,child"``.
+
+    From the armature named ``armature`` (else the one the panel or selection gives), by
+    the same matching Pose Stick Figure uses; the humanoid's joints when none is found.
+    """
+    try:
+        arm = resolve_armature(context, armature)
+        data = read_armature(arm)
+        figure, _ = character_figure(data.skeleton, data.ik_limits)
+    except GesturePoseError:
+        edges = tuple(f"{p},{n}" for n, p, _ in HUMANOID_JOINTS if p)
+        return HUMANOID_JOINT_NAMES, edges
+    return figure.joint_names, _edges(figure.joint_names, figure.joint_parents)
+
+
+def _edges(names: tuple[str, ...], parents: np.ndarray) -> tuple[str, ...]:
+    """Stick edges as ``"parent,child"``; ``parents`` is ``(J,)`` with -1 at the root."""
+    return tuple(f"{names[p]},{n}" for n, p in zip(names, parents.tolist(), strict=True)
+                 if p >= 0)
+
+
+def _matching(options: tuple[str, ...], edit_text: str) -> list[str]:
+    text = edit_text.lower()
+    return [o for o in options if text in o.lower()]
+
+
+def _search_joints(self, context, edit_text: str) -> list[str]:
+    """Search callback of the joint fields: the character's stick joints."""
+    return _matching(figure_edges(context, getattr(self, "armature", ""))[0], edit_text)
+
+
+def _search_limbs(self, context, edit_text: str) -> list[str]:
+    """Search callback of the limb field: the character's stick edges."""
+    return _matching(figure_edges(context, getattr(self, "armature", ""))[1], edit_text)
+
 FACING_ITEMS = [("front", "Front", "The drawn character faces the viewer"),
                 ("back", "Back", "The drawn character turns its back to the viewer")]
 
@@ -175,7 +211,9 @@ class GESTUREPOSE_OT_pin_joint(GesturePoseOperatorMixin, bpy.types.Operator):
     armature: bpy.props.StringProperty(name="Armature")
     sketch: bpy.props.StringProperty(name="Sketch")
     environment: bpy.props.StringProperty(name="Environment")
-    joint: bpy.props.EnumProperty(name="Joint", items=JOINT_ITEMS, default="ankle.L")
+    joint: bpy.props.StringProperty(name="Joint", default="ankle.L", search=_search_joints,
+                                    description="Stick joint to pin (the character's joints "
+                                    "are offered as you type)")
     target: bpy.props.EnumProperty(name="Pin To", default="ENVIRONMENT", items=[
         ("ENVIRONMENT", "Environment", "The surface under the drawn joint"),
         ("LIMB", "Limb", "A point of another stick edge"),
@@ -183,7 +221,8 @@ class GESTUREPOSE_OT_pin_joint(GesturePoseOperatorMixin, bpy.types.Operator):
         ("CLEAR_ALL", "Clear All", "Remove every pin")])
     candidate: bpy.props.IntProperty(name="Surface", default=0, min=0, description=(
         "Which surface under the joint, nearest first (e.g. 0 the table, 1 the floor)"))
-    limb: bpy.props.EnumProperty(name="Limb", items=LIMB_ITEMS, default=LIMB_ITEMS[-2][0])
+    limb: bpy.props.StringProperty(name="Limb", default="pelvis,knee.R", search=_search_limbs,
+                                   description="Stick edge to pin to, as 'parent,child'")
     snap_radius: bpy.props.FloatProperty(name="Snap Radius", default=SNAP_RADIUS, min=1.0)
     facing: bpy.props.EnumProperty(name="Facing", items=FACING_ITEMS, default="front")
 
@@ -200,11 +239,18 @@ class GESTUREPOSE_OT_pin_joint(GesturePoseOperatorMixin, bpy.types.Operator):
         arm = resolve_armature(context, self.armature)
         sketch = resolve_sketch(context, self.sketch, arm)
         st = read_stick_scene(context, arm, sketch, self.snap_radius, self.facing)
-        j = st.stick.joint_names.index(self.joint)
+        names = st.stick.joint_names
+        if self.joint not in names:
+            raise InputError(f"'{self.joint}' is not a joint of this character's stick "
+                             f"figure; its joints are {', '.join(names)}.")
+        j = names.index(self.joint)
         if not st.stick.present[j]:
             raise InputError(f"'{self.joint}' is not in the drawing: draw it first.")
         env_pins, limb_pins = read_pins(scene)
         if self.target == "LIMB":
+            if self.limb not in _edges(st.figure.joint_names, st.figure.joint_parents):
+                raise InputError(f"'{self.limb}' is not an edge of the stick figure: give "
+                                 "it as 'parent,child', e.g. 'pelvis,knee.R'.")
             a, b = self.limb.split(",")
             if self.joint in (a, b):
                 raise InputError("A joint cannot be pinned to its own limb: pick another.")
@@ -301,7 +347,9 @@ class StickSettings(bpy.types.PropertyGroup):
     seed: bpy.props.IntProperty(name="Seed", default=0, min=0)
     suggestions: bpy.props.IntProperty(name="Suggestions", default=3, min=1, max=8)
     use_contact: bpy.props.BoolProperty(name="Contact Dot", default=False)
-    pin_joint: bpy.props.EnumProperty(name="Joint", items=JOINT_ITEMS, default="ankle.L")
+    pin_joint: bpy.props.StringProperty(name="Joint", default="ankle.L",
+                                        search=_search_joints,
+                                        description="Stick joint to pin")
     pin_candidate: bpy.props.IntProperty(name="Surface", default=0, min=0)
 
 
