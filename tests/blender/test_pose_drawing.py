@@ -295,3 +295,21 @@ def test_pose_stroke_refines_a_limb_after_pose(registered, monkeypatch):
     moved = np.abs(after.pose.rotations - posed.pose.rotations).max(axis=(1, 2)) > 1e-6
     assert {after.names[i] for i in np.flatnonzero(moved)} <= set(chain)
     assert moved[after.skeleton.index("upper_arm.L")]
+
+
+def test_pose_refuses_bad_input_and_changes_nothing(traced_humanoid):
+    arm, sketch, _cam, _bind, _truth = traced_humanoid
+    before = read_armature(arm).pose.rotations.copy()
+    empty = builders.add_grease_pencil("Empty", [])
+    cases = [({"armature": "Missing", "sketch": sketch.name}, "No object named 'Missing'"),
+             ({"armature": arm.name, "sketch": empty.name}, "has no strokes"),
+             ({"armature": arm.name, "sketch": sketch.name}, "beside the character")]
+    for kwargs, message in cases:
+        if message == "beside the character":
+            sketch.location.x += 3.0  # the whole drawing moved off the character, in view
+            bpy.context.view_layer.update()
+        with bpy.context.temp_override(active_object=arm, object=arm), \
+                pytest.raises(RuntimeError, match=message):
+            bpy.ops.gesture_pose.pose_drawing(**kwargs)
+        np.testing.assert_array_equal(read_armature(arm).pose.rotations, before)
+        assert arm.animation_data is None or arm.animation_data.action is None

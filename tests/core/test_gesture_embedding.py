@@ -72,6 +72,17 @@ def test_tiny_drawing_and_missing_mesh_are_input_errors():
         fit_drawing([Stroke(pixels)], skel, Pose.identity(2), np.zeros((0, 3)), cam)
 
 
+def test_drawing_beside_the_character_is_an_input_error():
+    cam, skel, pixels, verts, _ = _arm_case()
+    size = np.ptp(pixels, axis=0)
+    beside = pixels + [2.0 * size[0], 0.0]  # the same outline, drawn next to the arm
+    with pytest.raises(InputError, match="beside the character"):
+        fit_drawing([Stroke(beside)], skel, Pose.identity(2), verts, cam)
+    # Shifted by a fraction of its size it still overlaps the character: fitted.
+    near = fit_drawing([Stroke(pixels + 0.2 * size)], skel, Pose.identity(2), verts, cam)
+    assert np.all(np.isfinite(near.joints2d))
+
+
 def test_solving_skeleton_joints_and_exclusion():
     skel = tree_skeleton()
     sol = solving_skeleton(skel)

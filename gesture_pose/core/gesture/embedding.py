@@ -379,6 +379,30 @@ def _with_rigid(problem, cands: list[JointCandidates], turns: tuple[float, ...] 
     return out
 
 
+#: How far (as a fraction of the character's projected diagonal) a drawing's bounding box
+#: may lie beside the character's before it is refused as not drawn over it.
+FAR_MARGIN = 0.1
+
+
+def _check_over_character(bbox: np.ndarray, reference: np.ndarray, char_diag: float) -> None:
+    """Refuse a drawing whose bounding box misses the character's projected joints.
+
+    Args:
+        bbox: The drawing's ``[[xmin, ymin], [xmax, ymax]]``, pixels.
+        reference: The character's joints in the view, pixels, ``(J, 2)``.
+        char_diag: Their bounding-box diagonal, pixels.
+
+    Raises:
+        InputError: The two boxes are apart by more than :data:`FAR_MARGIN` of the diagonal.
+    """
+    lo, hi = reference.min(axis=0), reference.max(axis=0)
+    gap = np.maximum(np.maximum(bbox[0] - hi, lo - bbox[1]), 0.0)
+    if float(np.hypot(*gap)) > FAR_MARGIN * char_diag:
+        raise InputError(
+            f"The drawing lies {float(np.hypot(*gap)):.0f} px beside the character in the "
+            "view: draw over the character (or frame it so the drawing covers it).")
+
+
 def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices: np.ndarray,
                 camera: Camera, weights: np.ndarray | None = None,
                 params: GestureParams | None = None, override: np.ndarray | None = None,
@@ -400,7 +424,8 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
         The embedding with its diagnostics.
 
     Raises:
-        InputError: No strokes, a drawing far smaller than the character, no mesh.
+        InputError: No strokes, a drawing far smaller than the character or beside it, no
+            mesh.
     """
     params = params or GestureParams()
     timings: dict[str, float] = {}
@@ -417,6 +442,7 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
         raise InputError(
             f"The drawing ({drawing.diagonal:.0f} px across) is far smaller than the "
             f"character in the view ({char_diag:.0f} px): draw over the whole character.")
+    _check_over_character(drawing.bbox, reference, char_diag)
     ppu = camera.pixels_per_unit(float(np.mean(camera.depth(world))))
     timings["preprocess"] = time.perf_counter() - t0
 
