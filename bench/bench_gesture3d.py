@@ -185,11 +185,14 @@ def pose_table(quick: bool) -> tuple[str, list[str], list[list]]:
         solving = rep.embedding.solving
         got = posed_joints(solving, bind.skeleton, read_armature(arm).pose)
         err, rate, signs = metrics(solving, bind.skeleton, truth.pose, got, cam)
+        # Baseline: the error of leaving the character in its bind pose (doing nothing).
+        still = posed_joints(solving, bind.skeleton, bind.pose)
+        bind_err = metrics(solving, bind.skeleton, truth.pose, still, cam)[0]
         right, wrong = order_agreement(rep.result, solving, bind.skeleton, truth.pose, cam)
         fit_px = float(np.linalg.norm(rep.embedding.joints2d - cam.project(
             posed_joints(solving, bind.skeleton, truth.pose)), axis=1).mean())
         rows.append([kind, pose_name, view, solving.n_joints, rep.embedding.coverage, fit_px,
-                     err, rate, signs, f"{right}/{wrong}", rep.timings["fit"],
+                     err, bind_err, rate, signs, f"{right}/{wrong}", rep.timings["fit"],
                      rep.timings["solve3d"], rep.seconds])
     means = []
     for name, sel in (("mean front/side", [r for r in rows if r[2] != "oblique"]),
@@ -197,15 +200,16 @@ def pose_table(quick: bool) -> tuple[str, list[str], list[list]]:
                       ("mean", rows)):
         if not sel or (name != "mean" and len(sel) == len(rows)):
             continue
-        counts = np.array([[int(x) for x in r[9].split("/")] for r in sel]).sum(axis=0)
+        counts = np.array([[int(x) for x in r[10].split("/")] for r in sel]).sum(axis=0)
         means.append([name, "", "", ""] + [float(np.nanmean([r[i] for r in sel]))
-                                           for i in range(4, 9)]
+                                           for i in range(4, 10)]
                      + [f"{counts[0]}/{counts[1]}"]
-                     + [float(np.mean([r[i] for r in sel])) for i in range(10, 13)])
+                     + [float(np.mean([r[i] for r in sel])) for i in range(11, 14)])
     return ("Gesture3D whole Pose on traced contours (2D fit + 3D solve)",
             ["character", "pose", "view", "joints", "coverage", "2D joint error px",
-             "3D error % height", "depth order ok", "depth signs ok", "orders right/wrong",
-             "fit s", "3D s", "Pose s"], [*rows, *means])
+             "3D error % height", "bind pose error % height", "depth order ok",
+             "depth signs ok", "orders right/wrong", "fit s", "3D s", "Pose s"],
+            [*rows, *means])
 
 
 #: Bones of the Adventurer whose heads are the joints a drawing shows.
