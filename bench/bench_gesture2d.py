@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-ASSETS = Path(__file__).resolve().parents[2] / "shared" / "eval-assets"
-ADVENTURER = ASSETS / "humanoid_quaternius_adventurer" / "Adventurer_cmu40poses.glb"
+from bench.eval_assets import ADVENTURER, head_skeleton, load_adventurer, pose_through
+
 HEADERS = ["character", "pose", "view", "drawing", "joints", "mean err %", "p90 err %",
            "L/R swaps", "coverage %", "s"]
 
@@ -105,17 +105,6 @@ def sample_rows(quick: bool) -> list[list]:
     return rows
 
 
-def _head_rig():
-    """The glTF head-skeleton helpers of ``bench_gesture3d`` (glTF bones have no tails)."""
-    import importlib.util
-
-    path = Path(__file__).resolve().parent / "bench_gesture3d.py"
-    spec = importlib.util.spec_from_file_location("bench_gesture3d", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def _segment_weights(full, ends: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """Skin weights of the head-skeleton segments, ``(V, m)``.
 
@@ -138,7 +127,7 @@ def adventurer_rows(quick: bool) -> list[list]:
     """Rows for CMU poses on the Quaternius Adventurer (skipped when assets are absent).
 
     glTF bones carry token lengths, so the fitted skeleton is the one through the heads of
-    the major bones (as in ``bench_gesture3d``); its bind pose is the rest pose.
+    the major bones (``eval_assets.head_skeleton``); its bind pose is the rest pose.
     """
     if not ADVENTURER.exists():
         return []
@@ -153,17 +142,9 @@ def adventurer_rows(quick: bool) -> list[list]:
     from gesture_pose.core.stroke import Stroke
     from sample_scenes import builders
 
-    rig = _head_rig()
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.import_scene.gltf(filepath=str(ADVENTURER))
-    scene = bpy.context.scene
-    arm = next(o for o in scene.objects if o.type == "ARMATURE")
-    arm.data.pose_position = "REST"
-    bpy.context.view_layer.update()
-    full = read_armature(arm).skeleton
-    arm.data.pose_position = "POSE"
-    skel, ends = rig.head_skeleton(full, full.rest_heads)
-    meshes = [o for o in scene.objects if o.type == "MESH" and o.find_armature() == arm]
+    scene, arm, rest, meshes = load_adventurer()
+    full = rest.skeleton
+    skel, ends = head_skeleton(full, full.rest_heads)
     cam = builders.add_camera(meshes[0] if meshes else arm, resolution=(800, 800),
                               margin=1.4)
     camera = camera_from_object(cam, scene)
@@ -173,7 +154,7 @@ def adventurer_rows(quick: bool) -> list[list]:
         bpy.context.view_layer.update()
         data = read_armature(arm)
         md = read_skinned_meshes(arm, full)
-        truth_pose = rig.pose_through(skel, ends, full.forward(data.pose).heads)
+        truth_pose = pose_through(skel, ends, full.forward(data.pose).heads)
         clean = trace_contours(md.deformed_vertices, md.triangles, camera)
         for drawing, traced in (("clean", clean),
                                 ("perturbed", perturb(clean, Perturbation(seed=1)))):

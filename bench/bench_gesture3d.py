@@ -30,8 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-ASSETS = Path(__file__).resolve().parents[2] / "shared" / "eval-assets"
-ADVENTURER = ASSETS / "humanoid_quaternius_adventurer" / "Adventurer_cmu40poses.glb"
+from bench.eval_assets import ADVENTURER, head_skeleton, load_adventurer, pose_through
 
 HUMANOID_VIEWS = {"front": (0.0, -1.0, 0.0), "oblique": (0.5, -1.0, 0.2)}
 QUADRUPED_VIEWS = {"side": (1.0, 0.0, 0.0), "oblique": (1.0, -0.6, 0.2)}
@@ -212,60 +211,6 @@ def pose_table(quick: bool) -> tuple[str, list[str], list[list]]:
             [*rows, *means])
 
 
-#: Bones of the Adventurer whose heads are the joints a drawing shows.
-MAJOR = ("Hips", "Abdomen", "Torso", "Chest", "Neck", "Head", "UpperLeg.L", "LowerLeg.L",
-         "Foot.L", "UpperLeg.R", "LowerLeg.R", "Foot.R", "Shoulder.L", "UpperArm.L",
-         "LowerArm.L", "Hand.L", "Shoulder.R", "UpperArm.R", "LowerArm.R", "Hand.R")
-
-
-def head_skeleton(skeleton, heads_rest: np.ndarray):
-    """A skeleton through the heads of the :data:`MAJOR` bones of an imported glTF rig.
-
-    glTF has no bone tails (the importer gives every bone a token length), so the joints
-    are the bones' heads: one bone from each major bone's nearest major ancestor's head to
-    its own head. The first of them (the lower spine) is the root; the other bones
-    leaving the hips hang off it.
-
-    Returns:
-        ``(skeleton, ends)``: the head skeleton and, per bone, the full-skeleton indices of
-        its start and end bones, shape ``(m, 2)``.
-    """
-    from gesture_pose.core.rotations import rotation_between
-    from gesture_pose.core.skeleton import Skeleton
-
-    major = [skeleton.index(n) for n in MAJOR]
-    anc = {}
-    for b in major:
-        up = [a for a in skeleton.ancestors(b)[1:] if a in major]
-        anc[b] = up[0] if up else -1
-    order = [b for b in major if anc[b] >= 0]
-    order.sort(key=lambda b: len(skeleton.ancestors(b)))
-    seg = {b: k for k, b in enumerate(order)}
-    ends = np.array([[anc[b], b] for b in order])
-    h, t = heads_rest[ends[:, 0]], heads_rest[ends[:, 1]]
-    parents = np.array([seg.get(anc[b], -1) for b in order])
-    parents[1:][parents[1:] < 0] = 0
-    frames = rotation_between(np.array([0.0, 1.0, 0.0]), t - h)
-    n = len(order)
-    connected = np.array([p >= 0 and ends[p, 1] == ends[k, 0] for k, p in enumerate(parents)])
-    names = tuple(skeleton.names[b] for b in order)
-    return Skeleton(names, parents, h, t, frames, np.ones(n, bool), connected,
-                    np.ones(n, bool)), ends
-
-
-def pose_through(skel, ends: np.ndarray, heads_posed: np.ndarray):
-    """The pose of a head skeleton whose joints are the given posed heads."""
-    from gesture_pose.core.skeleton import Pose
-
-    pose = Pose.identity(skel.n_bones)
-    for k in range(skel.n_bones):
-        state = skel.forward(pose)
-        d = heads_posed[ends[k, 1]] - heads_posed[ends[k, 0]]
-        pose = pose.with_rotations(np.array([k]), skel.aim_local(k, d, state,
-                                                                  pose.rotations[k])[None])
-    return pose
-
-
 def cmu_table(quick: bool) -> tuple[str, list[str], list[list]] | None:
     """Table 3: lifting exact embeddings of CMU poses retargeted onto the Adventurer."""
     if not ADVENTURER.exists():
@@ -279,16 +224,8 @@ def cmu_table(quick: bool) -> tuple[str, list[str], list[list]] | None:
     from gesture_pose.core.gesture.solving import solving_skeleton
     from sample_scenes import builders
 
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.import_scene.gltf(filepath=str(ADVENTURER))
-    arm = next(o for o in bpy.context.scene.objects if o.type == "ARMATURE")
-    scene = bpy.context.scene
-    arm.data.pose_position = "REST"
-    bpy.context.view_layer.update()
-    full = read_armature(arm)
-    arm.data.pose_position = "POSE"
+    scene, arm, full, meshes = load_adventurer()
     skel, ends = head_skeleton(full.skeleton, full.skeleton.rest_heads)
-    meshes = [o for o in scene.objects if o.type == "MESH" and o.find_armature() == arm]
     cam_obj = builders.add_camera(meshes[0] if meshes else arm, direction=(0.0, -1.0, 0.0))
     cam = camera_from_object(cam_obj, scene)
     names = json.loads((ADVENTURER.parent / "Adventurer_cmu40poses_report.json").read_text())

@@ -20,12 +20,10 @@ the targets are under 3 % and under 1 s.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
-ASSETS = Path(__file__).resolve().parents[2] / "shared" / "eval-assets"
-ADVENTURER = ASSETS / "humanoid_quaternius_adventurer" / "Adventurer_cmu40poses.glb"
+from bench.eval_assets import ADVENTURER, load_adventurer
+
 HEADERS = ["case", "solves", "first %h", "best %h", "best %h (pelvis aligned)",
            "median s", "GA s", "refine s"]
 
@@ -125,18 +123,10 @@ def cmu_table(quick: bool) -> tuple[str, list[str], list[list]] | None:
     from gesture_pose.core.stick.solve import StickInput, solve_stick
     from sample_scenes import builders
 
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.import_scene.gltf(filepath=str(ADVENTURER))
-    scene = bpy.context.scene
-    arm = next(o for o in scene.objects if o.type == "ARMATURE")
-    arm.data.pose_position = "REST"
-    bpy.context.view_layer.update()
-    rest = read_armature(arm)
-    arm.data.pose_position = "POSE"
+    scene, arm, rest, meshes = load_adventurer()
     sk = rest.skeleton
     fig = humanoid_figure(sk)
     height = float(np.ptp(np.concatenate([sk.rest_heads, sk.rest_tails])[:, 2]))
-    meshes = [o for o in scene.objects if o.type == "MESH" and o.find_armature() == arm]
     # Drawn from the front-right of the character (the Adventurer faces +Y).
     side = np.cross(fig.forward, fig.up)
     view = fig.forward + 0.4 * side + 0.25 * fig.up
