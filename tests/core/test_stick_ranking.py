@@ -25,12 +25,8 @@ CAMERA = Camera.look_at([0.0, -4.5, 1.0], [0.0, 0.0, 1.0], width=1000, height=80
 def _pose(model: PoseModel, degrees: dict[str, list[float]]) -> np.ndarray:
     """Gene vector with the named groups' genes set (degrees), the rest at rest."""
     x = np.zeros(model.n_genes)
-    start = 6
-    for g in model.figure.groups:
-        m = g.bounds.shape[0]
-        if g.name in degrees:
-            x[start:start + m] = np.radians(degrees[g.name])
-        start += m
+    for name, values in degrees.items():
+        x[model.genes_of(name)] = np.radians(values)
     return x
 
 

@@ -96,14 +96,9 @@ def _stand_problem(noise=0.0, seed=0):
     fig = humanoid_figure(sk)
     model = PoseModel(sk, fig, Pose.identity(sk.n_bones))
     x = np.zeros(model.n_genes)
-    start = 6
-    for g in fig.groups:
-        m = g.bounds.shape[0]
-        val = {"upper_arm.L": [30, 0, 0], "forearm.L": [50], "upper_arm.R": [-20, 0, 20],
-               "thigh.L": [-20, 0, 0], "shin.L": [25]}.get(g.name)
-        if val is not None:
-            x[start:start + m] = np.radians(val)
-        start += m
+    for name, val in {"upper_arm.L": [30, 0, 0], "forearm.L": [50], "upper_arm.R": [-20, 0, 20],
+                      "thigh.L": [-20, 0, 0], "shin.L": [25]}.items():
+        x[model.genes_of(name)] = np.radians(val)
     x[:3] = [0.0, -1.0, 0.0]
     heads, tails, _ = model.forward(x[None])
     joints = fig.joint_positions(heads, tails)[0]

@@ -21,35 +21,24 @@ def _chain_genes(model: PoseModel, joint: int) -> np.ndarray:
     fig, sk = model.figure, model.skeleton
     b = int(fig.joint_bones[joint])
     above = set(sk.ancestors(b)) if fig.joint_at_tail[joint] else set(sk.ancestors(b)[1:])
-    genes, start = [], 6
-    for g in fig.groups:
-        m = g.bounds.shape[0]
-        if g.name not in ("spine", "head") and any(int(x) in above for x in g.bones):
-            genes += range(start, start + m)
-        start += m
-    return np.array(genes, int)
+    picked = [genes for g, genes in zip(fig.groups, model.group_genes, strict=True)
+              if g.name not in ("spine", "head") and any(int(x) in above for x in g.bones)]
+    return np.concatenate(picked) if picked else np.zeros(0, int)
 
 
 def _spine_genes(model: PoseModel) -> np.ndarray:
     """Genes of the spine group (empty when there is none)."""
-    start = 6
-    for g in model.figure.groups:
-        m = g.bounds.shape[0]
-        if g.name == "spine":
-            return np.arange(start, start + m)
-        start += m
-    return np.zeros(0, int)
+    return model.genes_of("spine")
 
 
 def _end_group_genes(model: PoseModel, joint: int) -> np.ndarray:
     """Genes of the group of the bone starting at a stick joint (foot at an ankle)."""
-    fig, start = model.figure, 6
+    fig = model.figure
     b = int(fig.joint_bones[joint])
-    for g in fig.groups:
-        m = g.bounds.shape[0]
-        if not fig.joint_at_tail[joint] and b in g.bones:
-            return np.arange(start, start + m)
-        start += m
+    if not fig.joint_at_tail[joint]:
+        for g, genes in zip(fig.groups, model.group_genes, strict=True):
+            if b in g.bones:
+                return genes
     return np.zeros(0, int)
 
 

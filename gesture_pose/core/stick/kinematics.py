@@ -70,11 +70,14 @@ class PoseModel:
         skeleton: Rest skeleton.
         figure: Stick model with the gene groups.
         base: Base pose (bones outside the groups keep its rotations), ``Pose``.
+        group_genes: Gene indices of each of the figure's groups, in group order (the
+            first :data:`N_ROOT_GENES` genes are the root's).
     """
 
     skeleton: Skeleton
     figure: CharacterFigure
     base: Pose
+    group_genes: tuple[np.ndarray, ...] = field(init=False, repr=False)
     _e_bone: np.ndarray = field(init=False, repr=False)
     _e_genes: np.ndarray = field(init=False, repr=False)
     _e_basis: np.ndarray = field(init=False, repr=False)
@@ -90,26 +93,28 @@ class PoseModel:
     def __post_init__(self) -> None:
         """Flatten the groups into per-(bone, gene) entries and cache descendant masks."""
         sk, fig = self.skeleton, self.figure
+        sizes = [grp.bounds.shape[0] for grp in fig.groups]
+        ends = N_ROOT_GENES + np.cumsum(sizes, dtype=int)
+        object.__setattr__(self, "group_genes", tuple(
+            np.arange(e - m, e) for e, m in zip(ends.tolist(), sizes, strict=True)))
         bone, col, gene = [], [], []
-        start = N_ROOT_GENES
-        for grp in fig.groups:
-            m = grp.bounds.shape[0]
+        for grp, genes in zip(fig.groups, self.group_genes, strict=True):
             for j, b in enumerate(grp.bones):
-                for c in range(m):
+                for c, g in enumerate(genes.tolist()):
                     bone.append((int(b), j, grp))
                     col.append(c)
-                    gene.append(start + c)
-            start += m
-        entries = [(int(b), grp, start_g) for grp, start_g in self._group_starts()
+                    gene.append(g)
+        entries = [(int(b), grp, genes)
+                   for grp, genes in zip(fig.groups, self.group_genes, strict=True)
                    for b in grp.bones]
         e_bone = np.array([b for b, _, _ in entries], int)
         e_genes = np.zeros((len(entries), 3), int)
         e_basis = np.zeros((len(entries), 3, 3))
         e_ncol = np.zeros(len(entries), int)
-        for e, (b, grp, sg) in enumerate(entries):
+        for e, (b, grp, genes) in enumerate(entries):
             j = int(np.flatnonzero(grp.bones == b)[0])
             m = grp.bounds.shape[0]
-            e_genes[e, :m] = sg + np.arange(m)
+            e_genes[e, :m] = genes
             e_basis[e, :, :m] = grp.bases[j] / len(grp.bones)
             e_ncol[e] = m
         object.__setattr__(self, "_e_bone", e_bone)
@@ -139,18 +144,17 @@ class PoseModel:
         hc = np.eye(3) if p < 0 else state.frames[p] @ sk.rest_frames[p].T
         object.__setattr__(self, "_root_hcarry", hc)
 
-    def _group_starts(self) -> list:
-        """``(group, first gene index)`` of every gene group."""
-        out, start = [], N_ROOT_GENES
-        for grp in self.figure.groups:
-            out.append((grp, start))
-            start += grp.bounds.shape[0]
-        return out
+    def genes_of(self, name: str) -> np.ndarray:
+        """Gene indices of the group called ``name`` (empty when there is none)."""
+        for grp, genes in zip(self.figure.groups, self.group_genes, strict=True):
+            if grp.name == name:
+                return genes
+        return np.zeros(0, int)
 
     @property
     def n_genes(self) -> int:
         """Length of the gene vector."""
-        return N_ROOT_GENES + sum(g.bounds.shape[0] for g in self.figure.groups)
+        return N_ROOT_GENES + sum(g.size for g in self.group_genes)
 
     def bounds(self, root_center: np.ndarray, root_range: float) -> np.ndarray:
         """Gene bounds, shape ``(G, 2)``: the root within ``root_range`` of ``root_center``.

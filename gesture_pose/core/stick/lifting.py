@@ -17,24 +17,22 @@ import numpy as np
 from ..camera import Camera
 from ..rotations import log_map, rotation_between
 from .graph import StickFigure
-from .kinematics import N_ROOT_GENES, PoseModel
+from .kinematics import PoseModel
 
 
 def _lifted_groups(model: PoseModel, stick: StickFigure) -> list[tuple[int, int, int, float]]:
     """``(group index, first gene, drawn end joint, length)`` of liftable limb groups."""
     sk, fig = model.skeleton, model.figure
     rest = fig.joint_positions(sk.rest_heads, sk.rest_tails)
-    out, start = [], N_ROOT_GENES
-    for gi, grp in enumerate(fig.groups):
-        m = grp.bounds.shape[0]
+    out = []
+    for gi, (grp, genes) in enumerate(zip(fig.groups, model.group_genes, strict=True)):
         if len(grp.bones) == 1:
             b = int(grp.bones[0])
             hit = np.flatnonzero(np.linalg.norm(rest - sk.rest_tails[b], axis=1) < 1e-6)
             hit = [j for j in hit if stick.present[j]]
             if hit:
                 length = float(np.linalg.norm(rest[hit[0]] - sk.rest_heads[b]))
-                out.append((gi, start, int(hit[0]), length))
-        start += m
+                out.append((gi, int(genes[0]), int(hit[0]), length))
     return out
 
 
