@@ -121,16 +121,22 @@ def _embedding_with_pieces(base: Embedding2D, pieces: dict[int, list[np.ndarray]
                        epsilon=2.0)
 
 
-def test_t_junction_detection_from_contours():
+def _t_drawing() -> tuple[Embedding2D, np.ndarray, np.ndarray]:
+    """The tree skeleton's rest embedding, a T's top (a horizontal line) and its stem (a
+    vertical stroke ending on the top's interior)."""
     sk = tree_skeleton()
-    cam = front_camera(ortho=True)
     solving = solving_skeleton(sk)
-    base = project_embedding(sk, solving, Pose.identity(6), cam)
-    # Upper arm outline: a long horizontal line; forearm outline: a vertical stroke that
-    # ends on the interior of the upper arm's line (stem of a T); the torso outline ends
-    # on nothing.
+    base = project_embedding(sk, solving, Pose.identity(6), front_camera(ortho=True))
     top = np.stack([np.linspace(400, 500, 51), np.full(51, 300.0)], 1)
     stem = np.stack([np.full(21, 450.0), np.linspace(260, 300, 21)], 1)
+    return base, top, stem
+
+
+def test_t_junction_detection_from_contours():
+    base, top, stem = _t_drawing()
+    solving = base.solving
+    # Upper arm outline: the T's top; forearm outline: its stem; the torso outline ends
+    # on nothing.
     free = np.stack([np.full(21, 380.0), np.linspace(100, 200, 21)], 1)
     emb = _embedding_with_pieces(base, {2: [top], 3: [stem], 0: [free]}, [top, stem, free])
     found = occlusions.detect_junctions(emb)
@@ -338,20 +344,16 @@ def test_pose_error_aligns_the_root_and_counts_depth_order():
 
 
 def test_junctions_between_parts_apart_in_the_drawing_are_not_occlusions():
-    sk = tree_skeleton()
-    cam = front_camera(ortho=True)
-    solving = solving_skeleton(sk)
-    base = project_embedding(sk, solving, Pose.identity(6), cam)
+    base, top, stem = _t_drawing()
     # An arm.R outline stopping across an arm.L outline: the two arms are drawn on either
     # side of the body (their tubes do not overlap), so this is not read as an occlusion.
-    top = np.stack([np.linspace(400, 500, 51), np.full(51, 300.0)], 1)
-    stem = np.stack([np.full(21, 450.0), np.linspace(260, 300, 21)], 1)
     emb = _embedding_with_pieces(base, {2: [top], 4: [stem]}, [top, stem])
     assert [(j.stem_bone, j.top_bone) for j in occlusions.detect_junctions(emb)] == [(4, 2)]
     assert occlusions.tubes_overlap(emb, 4, 2) > 1.0
     assert ordering.ordering_constraints(emb, scale=200.0) == []
     cons = ordering.ordering_constraints(emb, scale=200.0, overlap=np.inf)
     assert len(cons) == 1 and cons[0].kind == "occlusion"
+    solving = base.solving
     assert set(cons[0].back.tolist()) <= {solving.head_joint[4], solving.tail_joint[4]}
     # Bones two steps apart are not enough with min_parts=3.
     assert ordering.ordering_constraints(emb, scale=200.0, overlap=np.inf, min_parts=3) == []
