@@ -176,6 +176,17 @@ class Skeleton:
         return self._fk[0], self._fk[1]
 
     @property
+    def rest_relative_lists(self) -> tuple[list, list]:
+        """:attr:`rest_relative`'s rotations and the rest frames as nested Python lists.
+
+        For the per-bone loops on floats; computed once. Do not modify.
+
+        Returns:
+            ``(R_p^T R_i, R_i)``, ``n`` nested 3x3 lists each.
+        """
+        return self._fk[5][1], self._fk[5][2]
+
+    @property
     def n_bones(self) -> int:
         """Number of bones."""
         return len(self.names)

@@ -84,9 +84,10 @@ class ChainState:
         """Copy a pose and its forward kinematics."""
         rel_rot, rel_off = skeleton.rest_relative
         offsets = rel_off + np.einsum("nij,nj->ni", rel_rot, translations)
+        rel_rot_lists, rest_lists = skeleton.rest_relative_lists
         tables = _Tables(skeleton.parents.tolist(), skeleton.inherit_rotation.tolist(),
-                         rel_rot.tolist(), skeleton.rest_frames.tolist(),
-                         skeleton.lengths.tolist(), offsets.tolist())
+                         rel_rot_lists, rest_lists, skeleton.lengths.tolist(),
+                         offsets.tolist())
         return cls(skeleton, translations, rotations.tolist(), state.heads.tolist(),
                    state.tails.tolist(), state.frames.tolist(), tables)
 
