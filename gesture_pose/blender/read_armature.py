@@ -6,6 +6,12 @@ Blender's pose recursion in armature space is
 ``W = [s R_o | T]`` (uniform scale ``s`` only) the world rest frames are ``R_i = R_o B_i``,
 the world rest heads ``r_i = W b_i`` and the local translations ``t_i = s m_i``; the core's
 ``Skeleton.forward`` then reproduces ``W P_i`` exactly (see ``core/skeleton.py``).
+
+Imported rigs whose bones have token lengths (glTF has no tails; see
+``core/joint_skeleton.py``) are read as their joint skeleton: each bone from its head to
+its principal child's head, rest frames ``R_i C_i``, and the pose conjugated into those
+frames (``Q' = C^T Q C``). ``ArmatureData.frame_change`` holds ``C`` so that
+``write_pose`` writes the real bones' local rotations back.
 """
 
 from __future__ import annotations
@@ -16,6 +22,12 @@ import bpy
 import numpy as np
 
 from ..core.exceptions import InputError
+from ..core.joint_skeleton import (
+    has_token_bones,
+    joint_skeleton,
+    remap_axis_settings,
+    to_joint_pose,
+)
 from ..core.rotations import orthonormalize
 from ..core.skeleton import Pose, Skeleton
 
@@ -49,6 +61,11 @@ class ArmatureData:
             NaN where the axis is not limited.
         object_scale: The object's uniform world scale ``s``.
         matrix_world: The object's world matrix, shape ``(4, 4)``.
+        frame_change: For a rig read as its joint skeleton (token bones), the constant
+            rotations ``C_i`` from each real bone's rest frame to the skeleton's
+            (``R'_i = R_i C_i``), ``(n, 3, 3)``; None when the bones are read as they are.
+            ``pose`` is then in the joint skeleton's frames (``Q' = C^T Q C``).
+        warnings: Notes about the read (e.g. rotation locks that could not be kept).
     """
 
     object_name: str
@@ -61,6 +78,8 @@ class ArmatureData:
     ik_limits: np.ndarray
     object_scale: float
     matrix_world: np.ndarray
+    frame_change: np.ndarray | None = None
+    warnings: tuple[str, ...] = ()
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -149,11 +168,13 @@ def _ik_limits(pose_bones) -> np.ndarray:
     return out
 
 
-def read_armature(arm_obj: bpy.types.Object) -> ArmatureData:
+def read_armature(arm_obj: bpy.types.Object, joints: bool = True) -> ArmatureData:
     """Read the rest skeleton, current pose and per-bone settings of an armature object.
 
     Args:
         arm_obj: An object of type ``'ARMATURE'``.
+        joints: Read a rig whose bones have token lengths (an imported glTF rig) as its
+            joint skeleton (see the module docstring); False reads the bones as they are.
 
     Returns:
         The armature's data, bones ordered parents first.
@@ -215,6 +236,12 @@ def read_armature(arm_obj: bpy.types.Object) -> ArmatureData:
     pinned_coll = _collection_mask(arm, PINNED_COLLECTION, names)
     if pinned_coll is not None:
         pinned |= pinned_coll
+    lock = _bulk(pose_bones, "lock_rotation", 3, bool)[pb_order]
+    limits = _ik_limits(pose_bones)[pb_order]
+    change, warnings = None, ()
+    if joints and has_token_bones(skeleton):
+        skeleton, pose, change, lock, limits, warnings = _as_joints(arm_obj, skeleton, pose,
+                                                                    lock, limits)
     return ArmatureData(
         object_name=arm_obj.name,
         skeleton=skeleton,
@@ -222,8 +249,34 @@ def read_armature(arm_obj: bpy.types.Object) -> ArmatureData:
         rotation_modes=modes,
         pinned=pinned,
         gesture_override=_collection_mask(arm, GESTURE_COLLECTION, names),
-        lock_rotation=_bulk(pose_bones, "lock_rotation", 3, bool)[pb_order],
-        ik_limits=_ik_limits(pose_bones)[pb_order],
+        lock_rotation=lock,
+        ik_limits=limits,
         object_scale=scale,
         matrix_world=world,
+        frame_change=change,
+        warnings=warnings,
     )
+
+
+def _as_joints(arm_obj: bpy.types.Object, skeleton: Skeleton, pose: Pose, lock: np.ndarray,
+               limits: np.ndarray) -> tuple:
+    """The joint skeleton of a token-bone rig, with its pose and axis settings.
+
+    End bones follow their skinned mesh (rest vertices and weights read here).
+
+    Returns:
+        ``(skeleton, pose, frame_change (n, 3, 3), lock (n, 3), ik_limits (n, 3, 2),
+        warnings)``.
+    """
+    from .read_mesh import rest_skin
+
+    skin = rest_skin(arm_obj, skeleton)
+    joint = joint_skeleton(skeleton, *(skin if skin is not None else (None, None)))
+    lock, limits, dropped = remap_axis_settings(lock, limits, joint.frame_change)
+    warnings = ()
+    if dropped.any():
+        warnings = (f"Bones {[skeleton.names[i] for i in np.flatnonzero(dropped)][:5]} of "
+                    f"'{arm_obj.name}' are read head to child; their rotation locks and IK "
+                    "limits do not fall on its axes and are ignored.",)
+    return (joint.skeleton, to_joint_pose(pose, joint.frame_change), joint.frame_change,
+            lock, limits, warnings)

@@ -115,6 +115,28 @@ def _blend_skin(rest: np.ndarray, weights: np.ndarray, skeleton: Skeleton,
     return out
 
 
+def rest_skin(arm_obj: bpy.types.Object, skeleton: Skeleton
+              ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Rest vertices and normalized bone weights of the meshes ``arm_obj`` deforms.
+
+    No evaluation: only the meshes' own vertices and vertex groups are read.
+
+    Args:
+        arm_obj: The armature object.
+        skeleton: Its skeleton; weight columns follow its bone order.
+
+    Returns:
+        ``(vertices (V, 3) world, weights (V, n_bones) float32)``, or None without meshes.
+    """
+    objects = meshes_of(arm_obj)
+    if not objects:
+        return None
+    verts = np.concatenate([_world(_positions(o.data), o.matrix_world) for o in objects])
+    w = np.concatenate([_weights(o, skeleton) for o in objects])
+    total = w.sum(axis=1, keepdims=True)
+    return verts, np.divide(w, total, out=np.zeros_like(w), where=total > 0)
+
+
 def read_skinned_meshes(arm_obj: bpy.types.Object, skeleton: Skeleton,
                         depsgraph: bpy.types.Depsgraph | None = None,
                         state: PoseState | None = None) -> MeshData:

@@ -4,6 +4,10 @@ Only bones whose rotation changed are touched, and only their rotation channel i
 (plus ``location`` for the bones asked for), at one frame. Values stay continuous with
 the current ones: quaternions keep the hemisphere of the current value, Euler angles use
 Blender's compatible-Euler conversion and axis-angle keeps the side of the current axis.
+
+For a rig read as its joint skeleton (``ArmatureData.frame_change`` set: an imported rig
+with token bones) the pose is in the joint skeleton's frames and is conjugated back to the
+real bones' local frames (``Q = C Q' C^T``, ``t = C t'``) before anything is written.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import numpy as np
 from mathutils import Matrix, Vector
 
 from ..core.exceptions import InputError
+from ..core.joint_skeleton import from_joint_pose
 from ..core.skeleton import Pose
 from .read_armature import ArmatureData
 
@@ -45,6 +50,22 @@ def _check_pose(data: ArmatureData, pose: Pose) -> None:
                          f"'{data.object_name}' has {n}: read the armature again.")
     if not (np.all(np.isfinite(rot)) and np.all(np.isfinite(trans))):
         raise InputError("The computed pose has NaN values; nothing was written.")
+
+
+def blender_pose(data: ArmatureData, pose: Pose) -> Pose:
+    """A pose of ``data``'s skeleton in the pose bones' own local frames.
+
+    Args:
+        data: The armature as read.
+        pose: Local rotations and translations in ``data.skeleton``'s frames.
+
+    Returns:
+        ``pose`` itself for rigs read as they are; for joint skeletons the real bones'
+        ``Q = C Q' C^T`` and ``t = C t'``.
+    """
+    if data.frame_change is None:
+        return pose
+    return from_joint_pose(pose, data.frame_change)
 
 
 def set_rotation(pb: bpy.types.PoseBone, rotation: np.ndarray) -> str:
@@ -82,7 +103,8 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
     Args:
         arm_obj: The armature object ``data`` was read from.
         data: The armature as read before solving (its pose is the "unchanged" reference).
-        new_pose: Local rotations and translations in skeleton order.
+        new_pose: Local rotations and translations in skeleton order, in the frames of
+            ``data.skeleton`` (converted to the pose bones' frames here).
         bones: Bones (indices or names) allowed to change; all when None.
         insert_keys: Key the written channels.
         frame: Frame of the keys (the scene's current frame when None).
@@ -101,8 +123,9 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
     selected = _indices(data, bones)
     with_location = set(_indices(data, location_bones))
     frame = bpy.context.scene.frame_current if frame is None else frame
-    diff = np.abs(np.asarray(new_pose.rotations) - data.pose.rotations).max(axis=(1, 2))
-    old_t, new_t = data.pose.translations, np.asarray(new_pose.translations, dtype=float)
+    old, new_pose = blender_pose(data, data.pose), blender_pose(data, new_pose)
+    diff = np.abs(np.asarray(new_pose.rotations) - old.rotations).max(axis=(1, 2))
+    old_t, new_t = old.translations, np.asarray(new_pose.translations, dtype=float)
     moved = np.abs(new_t - old_t).max(axis=1) > tol
     written = []
     for i in sorted(set(selected) | with_location):
