@@ -81,3 +81,21 @@ def test_perturbation_is_deterministic_and_bounded():
 def test_empty_mesh_is_an_input_error():
     with pytest.raises(InputError):
         trace_contours(np.zeros((3, 3)), np.zeros((0, 3), int), _camera())
+
+
+def test_split_vertices_trace_like_the_welded_mesh():
+    """Imported meshes split vertices along UV seams: the seams are not contours."""
+    verts, tris = uv_sphere([0.0, 0.0, 0.0], 1.0)
+    cam = _camera()
+    # Every triangle gets its own three vertices (the worst seam splitting).
+    split_v = verts[tris].reshape(-1, 3)
+    split_t = np.arange(len(split_v)).reshape(-1, 3)
+    assert len(occluding_edges(split_v, split_t, cam)) == 3 * len(tris)  # all boundary
+    assert len(occluding_edges(split_v, split_t, cam, 1e-9)) == len(
+        occluding_edges(verts, tris, cam))
+    traced = trace_contours(split_v, split_t, cam)
+    pts = np.concatenate(traced.pixels)
+    centre = cam.project(np.zeros((1, 3)))[0]
+    np.testing.assert_allclose(np.linalg.norm(pts - centre, axis=1), 200.0, rtol=0.02)
+    whole = np.concatenate(trace_contours(verts, tris, cam).pixels)
+    assert abs(len(pts) - len(whole)) <= 2

@@ -5,7 +5,9 @@ benchmark here. The tracer is pure numpy:
 
 1. *Occluding edges*: mesh edges where a front-facing and a back-facing triangle meet
    (the silhouette and the interior contours where one part folds in front of another),
-   plus open boundary edges.
+   plus open boundary edges. Imported meshes (glTF) split their vertices along UV and
+   normal seams; pairs of boundary edges at the same place are such a seam and count as
+   one edge between their two triangles, or every seam would be traced.
 2. *Visibility*: a z-buffer of all triangles, rasterized by splatting a barycentric lattice
    finer than half a pixel; an edge point is visible when no surface lies more than a small
    depth tolerance in front of it.
@@ -36,12 +38,15 @@ class TraceParams:
         min_length: Shortest kept polyline, fraction of the traced drawing's diagonal.
         smooth_iterations: Laplacian smoothing passes on each polyline (ends fixed).
         splat_step: Lattice step of the z-buffer splatting, pixels.
+        weld: Boundary edges whose ends are closer than this fraction of the mesh's
+            bounding-box diagonal to another's are a seam (0: every boundary is traced).
     """
 
     depth_tolerance: float = 0.02
     min_length: float = 0.02
     smooth_iterations: int = 2
     splat_step: float = 0.5
+    weld: float = 1e-6
 
 
 @dataclass(frozen=True)
@@ -85,9 +90,28 @@ class TracedContours:
                                                                       strict=True))
 
 
-def occluding_edges(vertices: np.ndarray, triangles: np.ndarray,
-                    camera: Camera) -> np.ndarray:
-    """Edges between front- and back-facing triangles, and boundary edges, ``(e, 2)``."""
+def _place_ids(vertices: np.ndarray, tolerance: float) -> np.ndarray:
+    """One id per place: vertices within ``tolerance`` (on a grid) share it, ``(V,)``."""
+    keys = np.round(np.asarray(vertices, float) / max(tolerance, 1e-300)).astype(np.int64)
+    return np.unique(keys, axis=0, return_inverse=True)[1].ravel()
+
+
+def occluding_edges(vertices: np.ndarray, triangles: np.ndarray, camera: Camera,
+                    weld: float = 0.0) -> np.ndarray:
+    """Edges between front- and back-facing triangles, and boundary edges, ``(e, 2)``.
+
+    Args:
+        vertices: Vertices, ``(V, 3)``.
+        triangles: Triangles, ``(T, 3)`` int.
+        camera: The view.
+        weld: Boundary edges whose ends lie within this distance (world units) of another
+            boundary edge's ends are a seam (imported meshes split their vertices along UV
+            and normal seams): the pair is one edge between its two triangles, an occluding
+            edge only when one faces the camera. 0 keeps every boundary edge.
+
+    Returns:
+        Vertex index pairs of the occluding edges.
+    """
     v = vertices[triangles]
     normals = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
     view = camera.view_directions(v.mean(axis=1))
@@ -99,7 +123,26 @@ def occluding_edges(vertices: np.ndarray, triangles: np.ndarray,
     inverse = inverse.ravel()
     n_front = np.bincount(inverse, weights=front[faces].astype(float), minlength=len(uniq))
     contour = ((counts == 2) & (n_front == 1)) | (counts == 1)
-    return uniq[contour]
+    boundary = np.flatnonzero(counts == 1)
+    if weld <= 0 or boundary.size == 0:
+        return uniq[contour]
+    place = _place_ids(vertices, weld)
+    ends = place[uniq[boundary]]
+    _, group, size = np.unique(np.sort(ends, axis=1), axis=0, return_inverse=True,
+                               return_counts=True)
+    group = group.ravel()
+    seam = size[group] == 2
+    fronts = np.bincount(group, weights=n_front[boundary], minlength=len(size))
+    first = np.zeros(len(boundary), bool)
+    first[np.unique(group, return_index=True)[1]] = True
+    contour[boundary[seam]] = (fronts[group[seam]] == 1) & first[seam]
+    # Seam vertices take one index per place so that contours chain across seams.
+    rep = np.arange(len(vertices))
+    seam_v = np.unique(uniq[boundary[seam]])
+    _, pick = np.unique(place[seam_v], return_index=True)
+    lookup = dict(zip(place[seam_v[pick]].tolist(), seam_v[pick].tolist(), strict=True))
+    rep[seam_v] = [lookup[k] for k in place[seam_v].tolist()]
+    return rep[uniq[contour]]
 
 
 def zbuffer(pixels: np.ndarray, depth: np.ndarray, triangles: np.ndarray, width: int,
@@ -200,7 +243,7 @@ def trace_contours(vertices: np.ndarray, triangles: np.ndarray, camera: Camera,
     zbuf = zbuffer(px, dep, triangles, camera.width, camera.height, params.splat_step)
     diag = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
     tol = params.depth_tolerance * diag
-    edges = occluding_edges(vertices, triangles, camera)
+    edges = occluding_edges(vertices, triangles, camera, params.weld * diag)
     mid_px = 0.5 * (px[edges[:, 0]] + px[edges[:, 1]])
     mid_z = 0.5 * (dep[edges[:, 0]] + dep[edges[:, 1]])
     ix = np.clip(np.floor(mid_px[:, 0]).astype(int), 0, camera.width - 1)
