@@ -120,12 +120,39 @@ def _chain_lengths(skeleton: Skeleton) -> np.ndarray:
     return out
 
 
+def _twins(skeleton: Skeleton, kids: list[int], chain: np.ndarray, i: int,
+           tol: float = 0.02) -> set[int]:
+    """Children of bone ``i`` that form a left/right pair by their shape alone.
+
+    Two children are a pair when they are the only two at the same distance from the
+    bone's head with chains of the same length below (within ``tol``), and apart (more
+    than a twentieth of that distance): mirror images whatever their names (``b_Left..._15``
+    and ``b_Right..._19`` in the Khronos fox). Four fingers alike are not a pair.
+    """
+    heads = skeleton.rest_heads
+    dist = np.array([np.linalg.norm(heads[c] - heads[i]) for c in kids])
+    length = chain[kids]
+    alike = ((np.abs(dist[:, None] - dist[None]) <= tol * np.maximum(dist[:, None], dist[None]))
+             & (np.abs(length[:, None] - length[None])
+                <= tol * np.maximum(length[:, None], length[None]) + 1e-12))
+    apart = np.linalg.norm(heads[kids][:, None] - heads[kids][None], axis=2) > 0.05 * dist[:, None]
+    mate = alike & apart
+    out = set()
+    for a in range(len(kids)):
+        if mate[a].sum() == 1:
+            b = int(np.flatnonzero(mate[a])[0])
+            if mate[b].sum() == 1:
+                out.add(kids[a])
+    return out
+
+
 def principal_children(skeleton: Skeleton) -> np.ndarray:
     """The child each bone's chain continues through, ``(n,)`` int, -1 for none.
 
     Children whose heads sit on the bone's head are skipped, and so are left/right pairs
-    of siblings (shoulders and legs branch off a spine that continues to the neck). Of
-    the rest, the child starting the longest chain below is taken (spine over tail, middle
+    of siblings, told by their names (``.L``/``.R``, ``Left``/``Right``) or their shape
+    (``_twins``): shoulders and legs branch off a spine that continues to the neck. Of the
+    rest, the child starting the longest chain below is taken (spine over tail, middle
     finger over thumb). A bone whose children are all in pairs has no principal child.
 
     Args:
@@ -138,8 +165,11 @@ def principal_children(skeleton: Skeleton) -> np.ndarray:
     for i in range(skeleton.n_bones):
         kids = [int(c) for c in skeleton.children(i)
                 if np.linalg.norm(skeleton.rest_heads[c] - skeleton.rest_heads[i]) > tiny]
+        if not kids:
+            continue
         kid_names = {names[c] for c in kids}
-        single = [c for c in kids if mirror_name(names[c]) not in kid_names]
+        paired = _twins(skeleton, kids, chain, i)
+        single = [c for c in kids if mirror_name(names[c]) not in kid_names and c not in paired]
         if single:
             reach = [np.linalg.norm(skeleton.rest_heads[c] - skeleton.rest_heads[i]) + chain[c]
                      for c in single]

@@ -69,6 +69,17 @@ def test_principal_children_follow_the_chain_not_the_pairs():
         assert got[name[end]] == -1
 
 
+def test_pairs_without_side_names_are_told_by_their_shape():
+    """The Khronos fox names its arms b_RightUpperArm_06 and b_LeftUpperArm_09."""
+    sk = token_figure()
+    names = tuple(n.replace("Arm.L", "ArmA_06").replace("Arm.R", "ArmB_09") for n in NAMES)
+    renamed = Skeleton(names, sk.parents, sk.rest_heads, sk.rest_tails, sk.rest_frames,
+                       sk.inherit_rotation, sk.connected, sk.deform)
+    np.testing.assert_array_equal(principal_children(renamed), principal_children(sk))
+    # Without the shape test the longer arm chain would win over the neck.
+    assert principal_children(renamed)[3] == 4
+
+
 def test_joint_skeleton_runs_head_to_child_head_and_ends_on_the_mesh():
     sk = token_figure()
     rng = np.random.default_rng(3)
