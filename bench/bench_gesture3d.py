@@ -7,6 +7,11 @@ Three tables:
    so the numbers measure the 3D solve, not the 2D fit.
 2. **The whole Pose** (traced contours of a known pose, the 2D fit, the 3D solve) on the
    sample humanoid and quadruped, timed as the operator runs it.
+
+Tables 1 and 2 cover the mild example poses (``HUMANOID_POSES``, ``QUADRUPED_POSES``:
+mostly one limb changed, so the bind pose is a strong baseline) and the humanoid's poses
+far from the bind pose (``HUMANOID_FAR_POSES``: run, lunge, throw, arms crossed, sit),
+with the error of leaving the bind pose beside the result's.
 3. **CMU poses** retargeted onto a real character (``../shared/eval-assets``, skipped when
    absent), lifting alone as in table 1.
 
@@ -109,7 +114,8 @@ def _truth(arm, kind: str, pose_name: str):
     from sample_scenes import builders
 
     bind = read_armature(arm)
-    poses = builders.HUMANOID_POSES if kind == "humanoid" else builders.QUADRUPED_POSES
+    poses = ({**builders.HUMANOID_POSES, **builders.HUMANOID_FAR_POSES} if kind == "humanoid"
+             else builders.QUADRUPED_POSES)
     builders.apply_rotations(arm, demo_rotations(arm) if pose_name == "demo"
                              else poses[pose_name])
     bpy.context.view_layer.update()
@@ -119,16 +125,17 @@ def _truth(arm, kind: str, pose_name: str):
 
 def lifting_table(quick: bool) -> tuple[str, list[str], list[list]]:
     """Table 1: the 3D solve on exact embeddings of the sample characters' poses."""
-    from gesture_pose.core.gesture.depth import solve_pose3d
+    from gesture_pose.core.gesture.depth import joints_of, solve_pose3d
     from gesture_pose.core.gesture.depth.synthetic import project_embedding
     from gesture_pose.core.gesture.solving import solving_skeleton
     from sample_scenes import builders
 
+    far_names = set(builders.HUMANOID_FAR_POSES)
     rows = []
     cases = [("humanoid", p, v) for p in builders.HUMANOID_POSES for v in HUMANOID_VIEWS]
     cases += [("quadruped", p, v) for p in builders.QUADRUPED_POSES for v in QUADRUPED_VIEWS]
-    if quick:
-        cases = cases[:2]
+    far = [("humanoid", p, v) for p in builders.HUMANOID_FAR_POSES for v in HUMANOID_VIEWS]
+    cases = cases[:2] + far[:2] if quick else cases + far
     for kind, pose_name, view in cases:
         views = HUMANOID_VIEWS if kind == "humanoid" else QUADRUPED_VIEWS
         arm, cam = _scene(kind, views[view])
@@ -139,14 +146,21 @@ def lifting_table(quick: bool) -> tuple[str, list[str], list[list]]:
         res = solve_pose3d(bind.skeleton, emb, cam, bind.pose)
         seconds = time.perf_counter() - t0
         err, rate, signs = metrics(solving, bind.skeleton, truth.pose, res.joints3d, cam)
-        rows.append([kind, pose_name, view, solving.n_joints, err, rate, signs, seconds,
-                     res.iterations, len(res.ordering)])
-    mean = ["mean", "", "", "", float(np.mean([r[4] for r in rows])),
-            float(np.nanmean([r[5] for r in rows])), float(np.nanmean([r[6] for r in rows])),
-            float(np.mean([r[7] for r in rows])), "", ""]
+        still = joints_of(solving, bind.skeleton, bind.pose)
+        bind_err = metrics(solving, bind.skeleton, truth.pose, still, cam)[0]
+        rows.append([kind, pose_name, view, solving.n_joints, err, bind_err, rate, signs,
+                     seconds, res.iterations, len(res.ordering)])
+    means = []
+    for name, sel in (("mean mild poses", [r for r in rows if r[1] not in far_names]),
+                      ("mean far poses", [r for r in rows if r[1] in far_names]),
+                      ("mean", rows)):
+        if sel and (name == "mean" or len(sel) < len(rows)):
+            means.append([name, "", "", ""] + [float(np.nanmean([r[i] for r in sel]))
+                                               for i in range(4, 9)] + ["", ""])
     return ("Gesture3D lifting on exact 2D embeddings (sample characters)",
-            ["character", "pose", "view", "joints", "3D error % height", "depth order ok",
-             "depth signs ok", "3D time s", "SQP its", "order cons."], [*rows, mean])
+            ["character", "pose", "view", "joints", "3D error % height",
+             "bind pose error % height", "depth order ok", "depth signs ok", "3D time s",
+             "SQP its", "order cons."], [*rows, *means])
 
 
 def pose_table(quick: bool) -> tuple[str, list[str], list[list]]:
@@ -167,8 +181,11 @@ def pose_table(quick: bool) -> tuple[str, list[str], list[list]]:
     cases += [("humanoid", p, "oblique") for p in ("raise_left_arm", "wave", "kick_right_leg",
                                                    "step", "crouch", "reach")]
     cases += [("quadruped", p, "oblique") for p in ("paw_forward", "tail_up")]
-    if quick:
-        cases = cases[:1]
+    # Poses far from the bind pose (several limbs, in and out of the view plane), where
+    # leaving the bind pose is far off.
+    far = [("humanoid", p, v) for p in builders.HUMANOID_FAR_POSES for v in HUMANOID_VIEWS]
+    cases = cases[:1] + far[:1] if quick else cases + far
+    far_names = set(builders.HUMANOID_FAR_POSES)
     rows = []
     for kind, pose_name, view in cases:
         views = HUMANOID_VIEWS if kind == "humanoid" else QUADRUPED_VIEWS
@@ -194,8 +211,12 @@ def pose_table(quick: bool) -> tuple[str, list[str], list[list]]:
                      err, bind_err, rate, signs, f"{right}/{wrong}", rep.timings["fit"],
                      rep.timings["solve3d"], rep.seconds])
     means = []
-    for name, sel in (("mean front/side", [r for r in rows if r[2] != "oblique"]),
-                      ("mean oblique", [r for r in rows if r[2] == "oblique"]),
+    mild = [r for r in rows if r[1] not in far_names]
+    far_rows = [r for r in rows if r[1] in far_names]
+    for name, sel in (("mean mild, front/side", [r for r in mild if r[2] != "oblique"]),
+                      ("mean mild, oblique", [r for r in mild if r[2] == "oblique"]),
+                      ("mean mild poses", mild),
+                      ("mean far poses", far_rows),
                       ("mean", rows)):
         if not sel or (name != "mean" and len(sel) == len(rows)):
             continue

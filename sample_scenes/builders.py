@@ -890,6 +890,62 @@ HUMANOID_POSES: dict[str, dict[str, tuple[Vec3, float]]] = {
 }
 
 
+# Directions used by HUMANOID_FAR_POSES: each chain's bones are swung one after the
+# other, so a child's swing starts from the direction its parent's swing gave it.
+_RUN_ARM_R, _RUN_ARM_L = (-0.25, -0.75, -0.6), (0.25, 0.6, -0.75)
+_LUNGE_THIGH_L = (0.35, -0.75, -0.55)
+_THROW_ARM_R = (-0.6, 0.5, 0.6)
+_CROSS_ARM_L, _CROSS_ARM_R = (0.3, -0.45, -0.84), (-0.3, -0.4, -0.87)
+_SIT_ARM_L = (0.3, -0.6, -0.75)
+
+# Poses far from the bind pose, for tests and benchmarks that must tell a real result from
+# leaving the character as it is: several limbs changed, in and out of the view plane.
+# Same conventions as HUMANOID_POSES (armature-space rotations relative to the posed
+# parent; the character faces -Y, its left is +X; about +X a positive angle swings a
+# downward bone backwards, so hips flex with negative and knees with positive angles).
+HUMANOID_FAR_POSES: dict[str, dict[str, tuple[Vec3, float]]] = {
+    # Running: left knee high in front, right leg pushing off behind, torso leaning
+    # forward, right arm forward with the elbow bent up, left arm back.
+    "run": {"spine": (X, 12.0), "thigh.L": (X, -65.0), "shin.L": (X, 85.0),
+            "foot.L": (X, -20.0), "thigh.R": (X, 30.0), "shin.R": (X, 75.0),
+            "foot.R": (X, 30.0),
+            "upper_arm.R": _swing(_mirror_x(_A_POSE_ARM_L), _RUN_ARM_R),
+            "forearm.R": _swing(_RUN_ARM_R, (-0.2, -0.6, 0.75)),
+            "upper_arm.L": _swing(_A_POSE_ARM_L, _RUN_ARM_L),
+            "forearm.L": _swing(_RUN_ARM_L, (0.15, -0.5, -0.85))},
+    # Lunge forward and to the left: the left thigh reaches forward and out, its shin
+    # upright; the right leg stretched behind; both arms raised forward overhead.
+    "lunge": {"thigh.L": _swing((0.0, 0.0, -1.0), _LUNGE_THIGH_L),
+              "shin.L": _swing(_LUNGE_THIGH_L, (0.1, -0.2, -0.97)),
+              "thigh.R": (X, 40.0), "shin.R": (X, 15.0), "foot.R": (X, 45.0),
+              "upper_arm.L": _swing(_A_POSE_ARM_L, (0.3, -0.5, 0.8)),
+              "upper_arm.R": _swing(_mirror_x(_A_POSE_ARM_L), (-0.3, -0.5, 0.8))},
+    # Throw, wind-up: torso twisted to the right, right arm up and back with the forearm
+    # up, left arm pointing forward at the target, left leg stepping forward.
+    "throw": {"spine.001": (Z, -30.0),
+              "upper_arm.R": _swing(_mirror_x(_A_POSE_ARM_L), _THROW_ARM_R),
+              "forearm.R": _swing(_THROW_ARM_R, (-0.2, -0.3, 0.93)),
+              "upper_arm.L": _swing(_A_POSE_ARM_L, (0.35, -0.9, 0.25)),
+              "thigh.L": (X, -35.0), "shin.L": (X, 25.0), "thigh.R": (X, 15.0),
+              "shin.R": (X, 20.0)},
+    # Arms crossed in front of the chest (the left forearm in front of the right one),
+    # standing on the left leg with the right knee raised in front.
+    "cross_arms": {"upper_arm.L": _swing(_A_POSE_ARM_L, _CROSS_ARM_L),
+                   "forearm.L": _swing(_CROSS_ARM_L, (-0.93, -0.3, 0.2)),
+                   "upper_arm.R": _swing(_mirror_x(_A_POSE_ARM_L), _CROSS_ARM_R),
+                   "forearm.R": _swing(_CROSS_ARM_R, (0.93, -0.2, 0.3)),
+                   "thigh.R": (X, -70.0), "shin.R": (X, 90.0)},
+    # Sitting on an invisible stool: thighs forward, shins down, leaning back a little,
+    # hands resting on the knees.
+    "sit": {"spine": (X, -10.0), "thigh.L": (X, -85.0), "shin.L": (X, 85.0),
+            "thigh.R": (X, -80.0), "shin.R": (X, 100.0),
+            "upper_arm.L": _swing(_A_POSE_ARM_L, _SIT_ARM_L),
+            "forearm.L": _swing(_SIT_ARM_L, (0.05, -0.9, -0.4)),
+            "upper_arm.R": _swing(_mirror_x(_A_POSE_ARM_L), _mirror_x(_SIT_ARM_L)),
+            "forearm.R": _swing(_mirror_x(_SIT_ARM_L), (-0.05, -0.9, -0.4))},
+}
+
+
 # Root translations (armature space) of the poses that need them.
 HUMANOID_POSE_OFFSETS: dict[str, dict[str, Vec3]] = {"crouch": {"pelvis": (0.0, 0.12, -0.5)}}
 

@@ -284,4 +284,8 @@ def test_a_link_drawn_longer_than_it_can_be_weighs_little():
 
     clean = error(emb, DepthOptions())  # the depth the exact drawing leaves open
     assert error(bad, DepthOptions()) < clean + 0.02
-    assert error(bad, DepthOptions(max_drawn_ratio=np.inf)) > 2.0 * clean
+    # The guard alone (without E_b, which pulls the links drawn as in the bind pose back
+    # to it and hides part of the damage): measured 0.74 against 0.32 clean; with E_b
+    # 0.63 against 0.30 guarded.
+    assert error(bad, DepthOptions(max_drawn_ratio=np.inf, bind_weight=0.0)) > 2.0 * clean
+    assert error(bad, DepthOptions(max_drawn_ratio=np.inf)) > 1.5 * clean

@@ -294,7 +294,7 @@ def test_contacts_keep_touching_joints_at_one_depth():
     tip, base = solving.tail_joint[3], solving.head_joint[0]
     assert [base, tip] in regularity.contact_pairs(emb).tolist()
     reach = (emb.joint_radius[tip] + emb.joint_radius[base]) / cam.pixels_per_unit(6.0)
-    res = solve_pose3d(sk, emb, cam)
+    res = solve_pose3d(sk, emb, cam, options=DepthOptions(use_contacts=True))
     gap = abs((res.joints3d[tip] - res.joints3d[base]) @ FORWARD)
     assert gap <= reach + 1e-6
     free = solve_pose3d(sk, emb, cam, options=DepthOptions(use_contacts=False))

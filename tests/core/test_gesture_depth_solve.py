@@ -43,13 +43,17 @@ def test_flat_drawing_gives_pose_in_view_plane():
                                                    @ frame @ pose.rotations[b])[None])
     solving = solving_skeleton(sk)
     emb = project_embedding(sk, solving, pose, cam)
-    res = solve_pose3d(sk, emb, cam)
-    depth = res.joints3d @ FORWARD
-    assert res.converged
-    assert np.ptp(depth) < 1e-4
     truth = posed_joints(solving, sk, pose)
-    assert np.abs(res.joints3d - truth).max() < 1e-3
-    assert res.e_conformity < 1e-8
+    # The paper's energies reproduce the drawing exactly; E_b (ours) pulls the links drawn
+    # near their bind direction (the first one, 11 degrees off) a little towards it, in
+    # the view plane too (measured: 0.017 of the chain's 2.0 length).
+    for opts, tol in ((DepthOptions(bind_weight=0.0), 1e-3), (DepthOptions(), 0.03)):
+        res = solve_pose3d(sk, emb, cam, options=opts)
+        depth = res.joints3d @ FORWARD
+        assert res.converged
+        assert np.ptp(depth) < 1e-4
+        assert np.abs(res.joints3d - truth).max() < tol
+    assert res.e_conformity > 1e-6  # the pull is there
 
 
 @pytest.mark.parametrize("toward", [True, False])

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...rotations import log_map
 from ...skeleton import Pose, Skeleton
 from ..solving import symmetric_joint_pairs
 from ..types import Embedding2D, SolvingSkeleton
@@ -170,11 +171,93 @@ def lifted_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     return pose
 
 
+def _within(rotvec: np.ndarray, limits: np.ndarray, tol: float = 1e-3) -> bool:
+    """Whether a local rotation vector lies inside IK limits ``(3, 2)`` (NaN: no limit)."""
+    lo, hi = limits[:, 0], limits[:, 1]
+    lim = np.isfinite(lo) & np.isfinite(hi)
+    return bool(np.all((rotvec[lim] >= lo[lim] - tol) & (rotvec[lim] <= hi[lim] + tol)))
+
+
+def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
+                embedding: Embedding2D, bind: Pose, signs: np.ndarray, fixed: np.ndarray,
+                ik_limits: np.ndarray | None = None, natural_bend: bool = True,
+                min_bend: float = np.radians(3.0), min_lift: float = 0.1) -> np.ndarray:
+    """Depth sides of bones at a joint the rig restricts or bends (knees, elbows).
+
+    A drawn bone's two depth sides bend its joint with its parent in opposite senses. With
+    IK limits on the bone, the side whose local rotation (aimed from the bind pose as in
+    :func:`lifted_pose`) stays within them is taken when the other does not. Otherwise,
+    with ``natural_bend``, a bone connected to a parent it is bent against at rest (by at
+    least ``min_bend``: a knee slightly forward, an elbow slightly back) bends the same way
+    as at rest: the side whose bend axis ``u_parent x u_bone`` agrees with the rest bend
+    axis carried along by the parent's rotation. Only bones that leave the view plane by at
+    least ``min_lift`` of their length are decided; the others keep ``signs``.
+
+    Args:
+        skeleton: The full skeleton.
+        jmap: Joint map of the solving skeleton.
+        frame: The view.
+        embedding: The 2D embedding.
+        bind: The bind pose.
+        signs: Depth side of each solving bone so far (+1 away from the viewer), ``(m,)``.
+        fixed: Solving bones left at their bind rotation, ``(m,)`` bool.
+        ik_limits: IK limits ``[min, max]`` per local axis, radians, ``(n, 3, 2)``, NaN
+            when unlimited (optional).
+        natural_bend: Use the rest bend where IK limits do not decide.
+        min_bend: Smallest rest bend angle of a natural hinge, radians.
+        min_lift: Smallest depth change over length of a decided bone.
+
+    Returns:
+        The sides, ``(m,)``.
+    """
+    s, f = embedding.solving, frame
+    signs = np.asarray(signs, float).copy()
+    solving = set(int(b) for b in jmap.bones)
+    rest_dir = skeleton.rest_tails - skeleton.rest_heads
+    rest_dir = rest_dir / np.maximum(np.linalg.norm(rest_dir, axis=1, keepdims=True), 1e-12)
+    pose = bind
+    for k, bone in enumerate(jmap.bones):
+        if fixed[k]:
+            continue
+        bone = int(bone)
+        drawn = (embedding.joints2d[s.tail_joint[k]] - embedding.joints2d[s.head_joint[k]]) \
+            / f.scale
+        length = skeleton.lengths[bone]
+        depth = np.sqrt(max(length**2 - drawn @ drawn, 0.0))
+        state = skeleton.forward(pose)
+        parent = int(skeleton.parents[bone])
+        if depth >= min_lift * length and parent in solving:
+            cands = [drawn[0] * f.right + drawn[1] * f.up + sign * depth * f.forward
+                     for sign in (1.0, -1.0)]
+            decided = False
+            if ik_limits is not None and np.any(np.isfinite(ik_limits[bone])):
+                ok = [_within(log_map(skeleton.aim_local(bone, c, state,
+                                                         pose.rotations[bone])[None])[0],
+                              ik_limits[bone]) for c in cands]
+                if ok[0] != ok[1]:
+                    signs[k], decided = (1.0 if ok[0] else -1.0), True
+            axis = np.cross(rest_dir[parent], rest_dir[bone])
+            if (not decided and natural_bend and skeleton.connected[bone]
+                    and np.linalg.norm(axis) >= np.sin(min_bend)):
+                world = state.frames[parent] @ skeleton.rest_frames[parent].T
+                u = state.tails[parent] - state.heads[parent]
+                score = [float(np.cross(u, c) @ (world @ axis)) for c in cands]
+                if score[0] * score[1] < 0:
+                    signs[k] = 1.0 if score[0] > 0 else -1.0
+        direction = drawn[0] * f.right + drawn[1] * f.up + signs[k] * depth * f.forward
+        if np.linalg.norm(direction) < 1e-9 * length:
+            continue
+        rot = skeleton.aim_local(bone, direction, state, pose.rotations[bone])
+        pose = pose.with_rotations(np.array([bone]), rot[None])
+    return signs
+
+
 def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                order: list[OrderingConstraint], embedding: Embedding2D, bind: Pose,
                toward_viewer: bool = True, pinned: np.ndarray | None = None,
-               facing: float = 1.0, bind_turn: float = np.radians(45.0)
-               ) -> tuple[Pose, np.ndarray]:
+               facing: float = 1.0, bind_turn: float = np.radians(45.0),
+               keep: np.ndarray | None = None, ik_limits: np.ndarray | None = None,
+               natural_bend: bool = False) -> tuple[Pose, np.ndarray]:
     """The lifted start pose and the depth side of each solving bone.
 
     Args:
@@ -190,6 +273,13 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
             (:func:`drawn_facing`): the bind pose's sides and the default are reversed.
         bind_turn: Largest angle between a bone's drawn direction and its bind direction
             in the image for the bind pose's side to be kept, radians.
+        keep: Solving bones drawn as the bind pose shows them, left at their bind rotation
+            (not lifted) in the start, ``(m,)`` bool (optional).
+        ik_limits: IK limits per bone, ``(n, 3, 2)`` radians, NaN when unlimited: they
+            decide the side of a bone when only one side stays within them
+            (:func:`hinge_signs`).
+        natural_bend: Bones bent against their parents at rest bend the same way
+            (:func:`hinge_signs`) where IK limits do not decide.
 
     Returns:
         ``(pose, signs)``: the start pose and the sides, ``(m,)``.
@@ -197,6 +287,8 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     jm, f = jmap, frame
     fixed = (np.zeros(jm.n_bones, bool) if pinned is None
              else np.asarray(pinned, bool)[jm.bones])
+    if keep is not None:
+        fixed = fixed | np.asarray(keep, bool)
     state = skeleton.forward(bind)
     bind_slope = ((state.tails[jm.bones] - state.heads[jm.bones]) @ f.forward) \
         / skeleton.lengths[jm.bones]
@@ -210,6 +302,9 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                                bind_turn)
     kept = (np.abs(bind_slope) > 0.3) & near
     signs = np.where(kept, facing * np.sign(bind_slope), default)
+    if natural_bend or (ik_limits is not None and np.any(np.isfinite(ik_limits))):
+        signs = hinge_signs(skeleton, jm, f, embedding, bind, signs, fixed, ik_limits,
+                            natural_bend)
     pose = lifted_pose(skeleton, jm, f, embedding, bind, signs, fixed)
     if not order:
         return pose, signs
