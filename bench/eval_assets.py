@@ -18,7 +18,9 @@ def load_adventurer():
 
     Returns:
         ``(scene, armature object, its ArmatureData read in the rest position, the meshes
-        it deforms)``; the armature is left in the pose position.
+        it deforms)``; the armature is left in the pose position. Its bones have token
+        lengths, so the ArmatureData is the joint skeleton (``core/joint_skeleton.py``):
+        each bone from its head to its principal child's head, the pose in those frames.
     """
     import bpy
 
@@ -45,10 +47,12 @@ MAJOR = ("Hips", "Abdomen", "Torso", "Chest", "Neck", "Head", "UpperLeg.L", "Low
 def head_skeleton(skeleton, heads_rest: np.ndarray):
     """A skeleton through the heads of the :data:`MAJOR` bones of an imported glTF rig.
 
-    glTF has no bone tails (the importer gives every bone a token length), so the joints
-    are the bones' heads: one bone from each major bone's nearest major ancestor's head to
-    its own head. The first of them (the lower spine) is the root; the other bones
-    leaving the hips hang off it.
+    One bone from each major bone's nearest major ancestor's head to its own head: the
+    skeleton the benchmarks used before ``read_armature`` read token-bone rigs as joint
+    skeletons, kept so that their tables stay comparable (it has no hand, foot or head
+    end bones and skips the neck and shoulders). The first of them (the lower spine) is
+    the root; the other bones leaving the hips hang off it. ``skeleton`` may be the joint
+    skeleton or the raw one: only names, parents and heads are used.
 
     Returns:
         ``(skeleton, ends)``: the head skeleton and, per bone, the full-skeleton indices of
