@@ -27,7 +27,7 @@ Bone lengths are exact throughout (joint positions always come from forward kine
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -100,6 +100,10 @@ class DepthOptions:
         natural_bend: Start bones bent against their parents at rest (knees, elbows) on
             the depth side that bends them the same way (ours; IK limits on the bone
             decide first).
+        drop_unmet_orders: When the solve leaves depth-order constraints unmet, solve
+            again without them (ours; they contradict the drawing or each other).
+        order_patience: SQP iterations after which depth orders still unmet count as
+            unmet (the solve stops there) when ``drop_unmet_orders`` is on.
     """
 
     alpha: float = 200.0
@@ -129,7 +133,9 @@ class DepthOptions:
     bind_weight: float = 1.0
     bind_sigma: float = 0.025
     bind_keep: float = 0.5
-    natural_bend: bool = False
+    natural_bend: bool = True
+    drop_unmet_orders: bool = True
+    order_patience: int = 25
 
 
 @dataclass(frozen=True)
@@ -205,9 +211,13 @@ class _Setup:
 
 
 def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pose,
-           opts: DepthOptions, link_confidence: np.ndarray | None = None
+           opts: DepthOptions, link_confidence: np.ndarray | None = None,
+           skip: frozenset[str] = frozenset()
            ) -> tuple[_Setup, np.ndarray, np.ndarray, tuple[str, ...]]:
-    """Drawing cues, terms and constraints (step 1 of the module docstring)."""
+    """Drawing cues, terms and constraints (step 1 of the module docstring).
+
+    The depth orders labelled in ``skip`` are left out.
+    """
     s = embedding.solving
     jmap = twist.joint_map(skeleton, s)
     if len(embedding.joints2d) != jmap.n_joints or not np.all(
@@ -277,6 +287,7 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
                                           opts.junction_tolerance, opts.junction_interior,
                                           opts.occlusion_min_parts, opts.occlusion_overlap,
                                           opts.t_junctions)
+    order = [c for c in order if c.label not in skip]
     if order:
         rows = ordering.ordering_rows(order, frame.forward, n_j)
         # A hair of extra margin so that the nonlinear constraints hold, not only their
@@ -349,12 +360,35 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
         SolverError: A QP could not be solved even with softened constraints.
     """
     opts = options or DepthOptions()
+    args = (skeleton, embedding, camera, pose, lock_rotation, ik_limits, pinned, opts,
+            link_confidence)
+    result = _solve(*args)
+    unmet = tuple(c.label for c, ok in zip(result.ordering, result.ordering_satisfied,
+                                           strict=True) if not ok)
+    if not unmet or not opts.drop_unmet_orders:
+        return result
+    # Orders the solve could not meet contradict the drawing or each other (a limb drawn
+    # both in front of and behind another): forcing them twists limbs far from what is
+    # drawn. Solve again without them.
+    again = _solve(*args, skip=frozenset(unmet))
+    timings = {k: v + result.timings.get(k, 0.0) for k, v in again.timings.items()}
+    note = (f"{len(unmet)} depth-order constraint(s) contradicted the drawing and were "
+            f"dropped: {', '.join(unmet)}.")
+    return replace(again, timings=timings, warnings=(note, *again.warnings))
+
+
+def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pose | None,
+           lock_rotation: np.ndarray | None, ik_limits: np.ndarray | None,
+           pinned: np.ndarray | None, opts: DepthOptions,
+           link_confidence: np.ndarray | None, skip: frozenset[str] = frozenset()
+           ) -> Pose3DResult:
+    """One solve of :func:`solve_pose3d` without the depth orders labelled in ``skip``."""
     t0 = time.perf_counter()
     base = pose if pose is not None else Pose.identity(skeleton.n_bones)
     bones = np.asarray(embedding.solving.bones, dtype=int)
     bind = base.with_rotations(bones, np.tile(np.eye(3), (len(bones), 1, 1)))
     setup, X_rest, contacts, names = _setup(skeleton, embedding, camera, bind, opts,
-                                            link_confidence)
+                                            link_confidence, skip)
     timings = {"setup": time.perf_counter() - t0}
     t1 = time.perf_counter()
     # Bones drawn as the bind pose shows them start at their bind rotation.
@@ -384,6 +418,10 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
             converged = True  # neither the drawing energy nor the violation changes
             break
         previous, previous_violation = energy, violation
+        if (opts.drop_unmet_orders and setup.order and it > opts.order_patience
+                and np.any(ordering.violations(setup.order, setup.frame.depth(X))
+                           > opts.tolerance * mean_len)):
+            break  # orders still unmet this late: solve_pose3d drops them and solves again
         G = twist.position_jacobian(jm, X, state)
         dof = rig_rows(skeleton, jm, current, state.frames[jm.bones], lock_rotation,
                        ik_limits, pinned)

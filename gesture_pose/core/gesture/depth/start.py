@@ -46,6 +46,12 @@ def _is_left(bone: str) -> bool:
     return bone[-2:] in {f"{sep}{x}" for sep in ".-_" for x in "Ll"} or "Left" in bone
 
 
+def _is_sided(bone: str) -> bool:
+    """Whether a bone name is on the left or the right side (a limb's, not the spine's)."""
+    return _is_left(bone) or bone[-2:] in {f"{sep}{x}" for sep in ".-_" for x in "Rr"} \
+        or "Right" in bone
+
+
 def bind_front(solving: SolvingSkeleton, rest_joints: np.ndarray, frame: ViewFrame,
                min_slope: float = 0.3) -> float:
     """Which way the bind pose faces along the view: -1 towards the viewer, +1 away, 0 unclear.
@@ -187,9 +193,10 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     A drawn bone's two depth sides bend its joint with its parent in opposite senses. With
     IK limits on the bone, the side whose local rotation (aimed from the bind pose as in
     :func:`lifted_pose`) stays within them is taken when the other does not. Otherwise,
-    with ``natural_bend``, a bone connected to a parent it is bent against at rest (by at
-    least ``min_bend``: a knee slightly forward, an elbow slightly back) bends the same way
-    as at rest: the side whose bend axis ``u_parent x u_bone`` agrees with the rest bend
+    with ``natural_bend``, the middle bone of a limb (a ``.L``/``.R`` name, connected to
+    its parent, with a solving child: a shin, a forearm) bent against its parent at rest
+    (by at least ``min_bend``: a knee slightly forward, an elbow slightly back) bends the
+    same way as at rest: the side whose bend axis ``u_parent x u_bone`` agrees with the rest bend
     axis carried along by the parent's rotation. Only bones that leave the view plane by at
     least ``min_lift`` of their length are decided; the others keep ``signs``.
 
@@ -215,6 +222,12 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     solving = set(int(b) for b in jmap.bones)
     rest_dir = skeleton.rest_tails - skeleton.rest_heads
     rest_dir = rest_dir / np.maximum(np.linalg.norm(rest_dir, axis=1, keepdims=True), 1e-12)
+    # Natural hinges: the middle bones of limbs (a side in the name, connected to the
+    # parent, a solving child below): knees, elbows, not the spine, tails or hands.
+    has_child = np.zeros(jmap.n_bones, bool)
+    has_child[np.asarray(s.parent)[np.asarray(s.parent) >= 0]] = True
+    hinge = np.array([bool(skeleton.connected[b]) and has_child[k]
+                      and _is_sided(skeleton.names[b]) for k, b in enumerate(jmap.bones)])
     pose = bind
     for k, bone in enumerate(jmap.bones):
         if fixed[k]:
@@ -237,7 +250,7 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                 if ok[0] != ok[1]:
                     signs[k], decided = (1.0 if ok[0] else -1.0), True
             axis = np.cross(rest_dir[parent], rest_dir[bone])
-            if (not decided and natural_bend and skeleton.connected[bone]
+            if (not decided and natural_bend and hinge[k]
                     and np.linalg.norm(axis) >= np.sin(min_bend)):
                 world = state.frames[parent] @ skeleton.rest_frames[parent].T
                 u = state.tails[parent] - state.heads[parent]
