@@ -203,6 +203,31 @@ def test_pose_of_exact_drawings_far_from_the_bind_pose(registered, monkeypatch, 
     assert signs >= max(min_signs, bind_signs)
 
 
+def test_ik_limits_set_on_pose_bones_restrict_the_pose(registered, monkeypatch):
+    """IK limits set in Blender reach the 3D solve: a limited forearm turns only so far."""
+    from gesture_pose.core.rotations import log_map
+
+    arm, cam, bind, truth = _character("humanoid", "raise_left_arm", FRONT)
+    sketch = builders.add_grease_pencil("Sketch", [np.array([[0.0, -1.0, 0.0],
+                                                             [0.1, -1.0, 0.5]])])
+    monkeypatch.setattr(pose_drawing, "fit_scene_drawing", _oracle_fit(truth))
+    i = bind.skeleton.index("forearm.L")
+    free = pose_drawing.pose_from_drawing(arm, sketch, cam, insert_keys=False,
+                                          show_fit=False)
+    assert np.abs(log_map(free.result.pose.rotations[i][None])[0]).max() > 0.3  # 25 deg
+    pb = arm.pose.bones["forearm.L"]
+    for ax in "xyz":
+        setattr(pb, f"use_ik_limit_{ax}", True)
+        setattr(pb, f"ik_min_{ax}", -0.1)
+        setattr(pb, f"ik_max_{ax}", 0.1)
+    limited = pose_drawing.pose_from_drawing(arm, sketch, cam, insert_keys=False,
+                                             show_fit=False)
+    bpy.context.view_layer.update()
+    got = log_map(read_armature(arm).pose.rotations[i][None])[0]
+    assert np.abs(got).max() <= 0.1 + 2e-3
+    assert np.abs(log_map(limited.result.pose.rotations[i][None])[0]).max() <= 0.1 + 2e-3
+
+
 @pytest.fixture
 def traced_humanoid(registered):
     """Humanoid with its left arm raised, traced from the front into a Grease Pencil sketch;
