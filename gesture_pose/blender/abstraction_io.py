@@ -258,13 +258,21 @@ def deformed_vertices(mesh_objects: list, depsgraph) -> np.ndarray:
 
 
 def set_rig_pose(arm_obj, names: tuple[str, ...], pose: RigPose, bones: np.ndarray,
-                 object_scale: float) -> None:
-    """Write rotations, uniform scales and translations of ``bones`` to the pose bones."""
+                 object_scale: float, frame_change: np.ndarray | None = None) -> None:
+    """Write rotations, uniform scales and translations of ``bones`` to the pose bones.
+
+    ``frame_change`` is ``ArmatureData.frame_change``: for a rig read as its joint
+    skeleton, the pose is conjugated back to the real bones' frames first
+    (``Q = C Q' C^T``, ``t = C t'``; see ``core/joint_skeleton.py``).
+    """
     for b in bones:
         pb = arm_obj.pose.bones[names[b]]
-        set_rotation(pb, pose.rotations[b])
+        rot, trans = pose.rotations[b], pose.translations[b]
+        if frame_change is not None:
+            rot, trans = frame_change[b] @ rot @ frame_change[b].T, frame_change[b] @ trans
+        set_rotation(pb, rot)
         pb.scale = (float(pose.scales[b]),) * 3
-        pb.location = pose.translations[b] / object_scale
+        pb.location = trans / object_scale
 
 
 class BlenderRigEvaluator:
@@ -296,7 +304,8 @@ class BlenderRigEvaluator:
 
     def __call__(self, pose: RigPose) -> tuple[np.ndarray, np.ndarray]:
         """``(raw abstraction points (m, 3), mesh vertices (V, 3))`` at ``pose``."""
-        set_rig_pose(self._arm_obj, self._arm.names, pose, self._bones, self._arm.object_scale)
+        set_rig_pose(self._arm_obj, self._arm.names, pose, self._bones, self._arm.object_scale,
+                     self._arm.frame_change)
         self._context.view_layer.update()
         depsgraph = self._context.evaluated_depsgraph_get()
         self.evaluations += 1

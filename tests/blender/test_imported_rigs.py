@@ -118,6 +118,14 @@ def test_written_pose_matches_posing_the_rig_directly(bpy_blank):
     # Reading again gives the written pose, in the joint skeleton's frames.
     np.testing.assert_allclose(read_armature(token).pose.rotations, posed.pose.rotations,
                                atol=1e-5)
+    # The abstraction mode's evaluator writes pose bones itself: same conversion.
+    from gesture_pose.blender.abstraction_io import set_rig_pose
+    from gesture_pose.core.abstraction import RigPose
+
+    builders.reset_pose(token)
+    set_rig_pose(token, rest.names, RigPose.from_pose(posed.pose), np.arange(len(rest.names)),
+                 rest.object_scale, rest.frame_change)
+    np.testing.assert_allclose(_world_matrices(token), direct, atol=1e-5)
 
 
 def _traced_pair(pose_name: str):
