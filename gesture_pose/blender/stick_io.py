@@ -278,21 +278,34 @@ def write_stick(sketch_obj, stick: StickFigure, camera: Camera, depth: float, fr
     write_strokes(sketch_obj, layer.name, lines, frame=frame, replace=True)
 
 
-def _layer_strokes(sketch_obj, frame: int) -> tuple[str, list[np.ndarray], float | None]:
-    """The active layer's name, its strokes' world points and their mean point radius."""
+def _layer_strokes(sketch_obj, frame: int) -> tuple[str, list[np.ndarray], list[np.ndarray]]:
+    """The active layer's name, its strokes' world points and their point radii."""
     layer = sketch_obj.data.layers.active or sketch_obj.data.layers[0]
     strokes = [s for s in read_sketch(sketch_obj, frame) if s.layer_name == layer.name]
-    radii = [s.radius for s in strokes if len(s.radius)]
-    radius = float(np.mean(np.concatenate(radii))) if radii else None
-    return layer.name, [s.points_world.copy() for s in strokes], radius
+    return (layer.name, [s.points_world.copy() for s in strokes],
+            [np.asarray(s.radius, float).copy() for s in strokes])
+
+
+def _restore_strokes(sketch_obj, frame: int, saved: tuple) -> None:
+    """Write back strokes saved by :func:`_layer_strokes`: points and per-point radii."""
+    layer_name, lines, radii = saved
+    if not lines:
+        return
+    layer = write_strokes(sketch_obj, layer_name, lines, frame=frame, replace=True,
+                          radius=float(np.mean(np.concatenate(radii))))
+    drawing = layer.get_frame_at(frame).drawing
+    attr = drawing.attributes.get("radius")
+    if attr is not None:
+        attr.data.foreach_set("value", np.concatenate(radii).astype(np.float32))
 
 
 class StickDragSession:
     """Dragging drawn stick joints (Section 4.2), independent of the viewport's events.
 
-    The modal Edit Stick Figure operator only translates mouse events into
-    :meth:`press`, :meth:`move`, :meth:`release` and :meth:`cancel`; the session holds the
-    armature, the sketch, the matched drawing and the view. A drag shorter than
+    The modal Edit Stick Figure operator only passes its events to :meth:`handle`, which
+    turns them into :meth:`press`, :meth:`move`, :meth:`release` and :meth:`cancel`; the
+    session holds the armature, the sketch, the matched drawing and the view. A drag
+    shorter than
     ``global_radius`` pixels moves one joint, a longer one the chain from the pelvis
     (:func:`~gesture_pose.core.stick.edit.drag_node`); every move rewrites the sketch's
     active layer as one straight stroke per drawn stick edge, release poses the character
@@ -328,7 +341,7 @@ class StickDragSession:
         self.camera, self.depth, self.stick = st.camera, st.sketch_depth, st.stick
         self.joint: int | None = None
         self._start: StickFigure | None = None
-        self._saved: tuple[str, list[np.ndarray], float | None] | None = None
+        self._saved: tuple[str, list[np.ndarray], list[np.ndarray]] | None = None
         self.moved = False
 
     @property
@@ -372,14 +385,44 @@ class StickDragSession:
                                 self.sketch)
         return result
 
+    def handle(self, kind: str, value: str, xy, context=None) -> str:
+        """One viewport event: what the modal operator returns for it.
+
+        Left mouse press picks a joint, mouse moves drag it, release poses the character;
+        Esc during a drag cancels the drag, otherwise Esc or right mouse ends the editing.
+
+        Args:
+            kind: Blender's event type (``"LEFTMOUSE"``, ``"MOUSEMOVE"``, ``"ESC"``, ...).
+            value: Its value (``"PRESS"``, ``"RELEASE"``, ...).
+            xy: Mouse position in the region, pixels, ``(2,)``.
+            context: Blender context for the solve on release (the current one if None).
+
+        Returns:
+            ``"RUNNING_MODAL"``, ``"FINISHED"`` or ``"PASS_THROUGH"``.
+
+        Raises:
+            InputError: Posing from the edited drawing failed (the editing goes on).
+        """
+        if kind in {"ESC", "RIGHTMOUSE"} and value == "PRESS":
+            if kind == "ESC" and self.cancel():
+                return "RUNNING_MODAL"
+            return "FINISHED"
+        if kind == "LEFTMOUSE" and value == "PRESS":
+            self.press(xy)
+            return "RUNNING_MODAL"
+        if kind == "MOUSEMOVE" and self.dragging:
+            self.move(xy)
+            return "RUNNING_MODAL"
+        if kind == "LEFTMOUSE" and value == "RELEASE" and self.dragging:
+            self.release(context)
+            return "RUNNING_MODAL"
+        return "PASS_THROUGH"
+
     def cancel(self) -> bool:
         """Abort the drag: the strokes and the drawing go back to before it (False: none)."""
         if self.joint is None:
             return False
-        layer, lines, radius = self._saved
-        if lines:
-            write_strokes(self.sketch, layer, lines, frame=self.frame, replace=True,
-                          radius=radius)
+        _restore_strokes(self.sketch, self.frame, self._saved)
         self.stick = self._start
         self.joint = self._start = self._saved = None
         return True

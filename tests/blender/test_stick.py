@@ -163,17 +163,19 @@ def test_drag_session_short_drag_moves_one_joint_and_release_poses(registered):
     # A press far from every joint picks none; moves then do nothing.
     assert session.press(before[wrist] + [300.0, 300.0]) is None
     assert not session.move(before[wrist]) and session.release() is None
-    assert session.press(before[wrist] + [3.0, -2.0]) == "wrist.L"
-    assert session.move(before[wrist] + [10.0, 5.0])
-    assert session.move(before[wrist] + [20.0, 15.0])  # 25 px < the global radius
+    # The operator's events: press near the wrist, two moves (25 px < the global radius).
+    assert session.handle("LEFTMOUSE", "PRESS", before[wrist] + [3.0, -2.0]) == "RUNNING_MODAL"
+    assert session.joint == wrist
+    assert session.handle("MOUSEMOVE", "NOTHING", before[wrist] + [10.0, 5.0]) == "RUNNING_MODAL"
+    assert session.handle("MOUSEMOVE", "NOTHING", before[wrist] + [20.0, 15.0]) == "RUNNING_MODAL"
     drawn = read_stick_scene(bpy.context, arm, sketch).stick
     moved = np.linalg.norm(drawn.points - before, axis=1)
     present = drawn.present
     assert abs(moved[wrist] - 25.0) < 1.0
     assert np.all(moved[present & (np.arange(len(moved)) != wrist)] < 0.5)
     assert not arm.animation_data or not arm.animation_data.action
-    result = session.release()
-    assert result is not None and not session.dragging
+    assert session.handle("LEFTMOUSE", "RELEASE", before[wrist] + [20.0, 15.0]) == "RUNNING_MODAL"
+    assert not session.dragging
     # Posed from the edited drawing and keyed at the current frame only.
     assert keyed_frames(arm, "pelvis", "location") == [5.0]
     assert keyed_frames(arm, "upper_arm.L", "rotation_quaternion") == [5.0]
@@ -213,22 +215,32 @@ def test_drag_session_cancel_restores_the_drawing(registered):
 
     sc, session = _session()
     arm, sketch = sc["armature"], sc["sketch"]
-    original = [s.points_world.copy() for s in read_sketch(sketch)]
+    original = read_sketch(sketch)
     start = session.stick.points.copy()
     knee = session.stick.joint_names.index("knee.R")
-    session.press(start[knee])
-    session.move(start[knee] + [80.0, 0.0])
+    # The operator's events, as the modal passes them: a far (global) drag, then Esc.
+    assert session.handle("LEFTMOUSE", "PRESS", start[knee]) == "RUNNING_MODAL"
+    assert session.handle("MOUSEMOVE", "NOTHING", start[knee] + [80.0, 0.0]) == "RUNNING_MODAL"
+    assert session.handle("MOUSEMOVE", "NOTHING", start[knee] + [90.0, 30.0]) == "RUNNING_MODAL"
     edited = [s.points_world for s in read_sketch(sketch)]
-    assert not all(len(a) == len(b) and np.allclose(a, b, atol=1e-3)
-                   for a, b in zip(edited, original, strict=True))
-    assert session.cancel() and not session.dragging
-    restored = [s.points_world for s in read_sketch(sketch)]
+    assert len(edited) != len(original) or not all(
+        np.allclose(a, b.points_world, atol=1e-3) for a, b in zip(edited, original, strict=True))
+    assert session.handle("ESC", "PRESS", start[knee]) == "RUNNING_MODAL"  # cancels the drag
+    assert not session.dragging
+    # Exactly as before: the same strokes, points and radii, and the same drawing.
+    restored = read_sketch(sketch)
     assert len(restored) == len(original)
-    assert all(np.allclose(a, b, atol=1e-5) for a, b in zip(restored, original, strict=True))
+    for a, b in zip(restored, original, strict=True):
+        assert np.array_equal(a.points_world, b.points_world)
+        assert np.array_equal(a.radius, b.radius)
     assert np.array_equal(session.stick.points, start, equal_nan=True)
     assert session.release() is None  # nothing left to pose
     assert not arm.animation_data or not arm.animation_data.action
     assert not session.cancel()
+    # Not dragging: Esc ends the editing; other events pass through to the viewport.
+    assert session.handle("WHEELUPMOUSE", "PRESS", start[knee]) == "PASS_THROUGH"
+    assert session.handle("MOUSEMOVE", "NOTHING", start[knee]) == "PASS_THROUGH"
+    assert session.handle("ESC", "PRESS", start[knee]) == "FINISHED"
 
 
 def test_edit_operator_needs_a_view_headless(registered):

@@ -315,27 +315,16 @@ class GESTUREPOSE_OT_edit_stick_figure(_StickSolveProps, bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def modal(self, context, event):
-        """Translate mouse and key events into the session's press, move, release, cancel."""
-        session = self._session
+        """Pass the event to the drag session (:meth:`StickDragSession.handle`)."""
         xy = (event.mouse_region_x, event.mouse_region_y)
-        if event.type in {"ESC", "RIGHTMOUSE"} and event.value == "PRESS":
-            if event.type == "ESC" and session.cancel():
-                return {"RUNNING_MODAL"}
+        try:
+            state = self._session.handle(event.type, event.value, xy, context)
+        except InputError as err:
+            self.report({"ERROR"}, str(err))
+            state = "RUNNING_MODAL"
+        if state == "FINISHED":
             context.workspace.status_text_set(None)
-            return {"FINISHED"}
-        if event.type == "LEFTMOUSE" and event.value == "PRESS":
-            session.press(xy)
-            return {"RUNNING_MODAL"}
-        if event.type == "MOUSEMOVE" and session.dragging:
-            session.move(xy)
-            return {"RUNNING_MODAL"}
-        if event.type == "LEFTMOUSE" and event.value == "RELEASE" and session.dragging:
-            try:
-                session.release(context)
-            except InputError as err:
-                self.report({"ERROR"}, str(err))
-            return {"RUNNING_MODAL"}
-        return {"PASS_THROUGH"}
+        return {state}
 
 
 class StickSettings(bpy.types.PropertyGroup):
