@@ -326,7 +326,8 @@ def pictures(out_dir: Path, pose_name: str = "demo") -> list[Path]:
 
     ``gesture3d_before_after.png``: front view of the bind pose under the traced drawing of
     a known pose, and of the result of the whole Pose. ``gesture3d_depth.png``: side views
-    of the known pose, of the lifting of its exact embedding, and of the whole Pose.
+    of the known pose, of the lifting of its exact embedding, and of the whole Pose. Poses
+    other than ``demo`` add their name to the file names.
     """
     import bpy
 
@@ -343,7 +344,8 @@ def pictures(out_dir: Path, pose_name: str = "demo") -> list[Path]:
 
     out_dir.mkdir(parents=True, exist_ok=True)
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    gesture_pose.register()
+    if not hasattr(bpy.types.Scene, "gesture_pose"):  # once per process
+        gesture_pose.register()
     arm, cam = _scene("humanoid", HUMANOID_VIEWS["front"])
     scene = bpy.context.scene
     scene.render.resolution_x = scene.render.resolution_y = 400
@@ -381,7 +383,9 @@ def pictures(out_dir: Path, pose_name: str = "demo") -> list[Path]:
     lifted_side = shot(side, "lifted_side")
     for tmp in out_dir.glob("_*.png"):
         tmp.unlink()
-    paths = [out_dir / "gesture3d_before_after.png", out_dir / "gesture3d_depth.png"]
+    suffix = "" if pose_name == "demo" else f"_{pose_name}"
+    paths = [out_dir / f"gesture3d_before_after{suffix}.png",
+             out_dir / f"gesture3d_depth{suffix}.png"]
     _save_row([before, after], paths[0])
     _save_row([truth_side, lifted_side, whole_side], paths[1])
     print(f"whole Pose {rep.seconds:.1f} s, coverage {rep.embedding.coverage:.2f}")
@@ -394,4 +398,5 @@ if __name__ == "__main__":
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     target = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1] \
         / "docs" / "img"
-    print(*pictures(target), sep="\n")
+    for name in sys.argv[2:] or ["demo"]:
+        print(*pictures(target, name), sep="\n")
