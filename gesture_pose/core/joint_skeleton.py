@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .gesture.solving import mirror_name
+from .names import mirror_name
 from .rotations import normalize, rotation_between
 from .skeleton import Pose, Skeleton
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..exceptions import InputError
+from ..names import mirror_name
 from ..skeleton import Skeleton
 from .types import SolvingSkeleton
 
@@ -122,26 +123,6 @@ def solving_skeleton(skeleton: Skeleton, override: np.ndarray | None = None,
                      min_bone_epsilons: float = 2.0) -> SolvingSkeleton:
     """Select the solving bones and build their joint tree (see :func:`select_bones`)."""
     return build_solving_skeleton(skeleton, select_bones(skeleton, override, min_bone_epsilons))
-
-
-def mirror_name(name: str) -> str | None:
-    """The left/right counterpart of a bone name.
-
-    Sides are suffixes (``.L``/``.R``, ``_L``/``_R``, ``-L``/``-R``, lower case too) or the
-    words ``Left``/``Right`` (as in Mixamo rigs).
-
-    Returns:
-        The mirrored name, or None when the name has no side.
-    """
-    for sep in ".-_":
-        for a, b in (("L", "R"), ("l", "r")):
-            for x, y in ((a, b), (b, a)):
-                if name.endswith(sep + x):
-                    return name[:-1] + y
-    for x, y in (("Left", "Right"), ("Right", "Left")):
-        if x in name:
-            return name.replace(x, y, 1)
-    return None
 
 
 def symmetric_joint_pairs(solving: SolvingSkeleton) -> np.ndarray:
