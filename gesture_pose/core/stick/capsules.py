@@ -135,7 +135,9 @@ def _segment_end(skeleton: Skeleton, bone: int, vertices: np.ndarray,
     """End of a bone's capsule: ``n + bone`` (its tail) or a child's index (its head).
 
     A child's head is used when the bone is shorter than ``short`` times the distance to
-    it; the child is the one lying best along the principal axis of the bone's vertices.
+    it; the child is the one lying best along the bone's own direction (a token-length
+    chest bone of an imported rig points at its neck, not at a shoulder), or along the
+    principal axis of the bone's vertices when the bone has no length.
     """
     n, head = skeleton.n_bones, skeleton.rest_heads[bone]
     kids = np.flatnonzero(skeleton.parents == bone)
@@ -143,9 +145,13 @@ def _segment_end(skeleton: Skeleton, bone: int, vertices: np.ndarray,
         return n + bone
     to_kid = skeleton.rest_heads[kids] - head
     dist = np.linalg.norm(to_kid, axis=1)
-    centred = vertices - vertices.mean(0)
-    axis = np.linalg.svd(centred, full_matrices=False)[2][0]
-    k = int(np.argmax(np.abs(to_kid @ axis) / np.maximum(dist, 1e-12)))
+    axis = skeleton.rest_tails[bone] - head
+    if np.linalg.norm(axis) > 1e-9:
+        k = int(np.argmax(to_kid @ axis / np.maximum(dist, 1e-12)))
+    else:
+        centred = vertices - vertices.mean(0)
+        axis = np.linalg.svd(centred, full_matrices=False)[2][0]
+        k = int(np.argmax(np.abs(to_kid @ axis) / np.maximum(dist, 1e-12)))
     if skeleton.lengths[bone] >= short * dist[k] or dist[k] < 1e-9:
         return n + bone
     return int(kids[k])

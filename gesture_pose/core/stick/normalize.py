@@ -33,17 +33,20 @@ def drawing_scale(stick: StickFigure, lengths_3d: np.ndarray, quantile: float = 
     return float(np.quantile(drawn / np.maximum(lengths_3d[e[:, 1]], 1e-9), quantile))
 
 
-def normalize_figure(stick: StickFigure, lengths_3d: np.ndarray, pixels_per_unit: float,
-                     root: int = 0, tolerance: float = 1.15) -> tuple[StickFigure, float]:
+def normalize_figure(stick: StickFigure, lengths_3d: np.ndarray,
+                     pixels_per_unit: float | np.ndarray, root: int = 0,
+                     tolerance: float = 1.15) -> tuple[StickFigure, float]:
     """Scale the figure so that no drawn edge is longer than its largest projection.
 
     Args:
         stick: The drawing.
         lengths_3d: 3D edge lengths indexed by the child joint, shape ``(J,)``.
-        pixels_per_unit: Image scale at the figure's depth.
+        pixels_per_unit: Image scale at the figure's depth, or per joint ``(J,)`` the
+            largest scale an edge ending there can have (at the nearest depth it can reach:
+            a head bent towards the eye projects larger than the pelvis' depth allows).
         root: Joint kept fixed (the pelvis).
         tolerance: Edges up to this many times their largest projection are accepted
-            (perspective enlarges limbs nearer the eye than the pelvis).
+            (the depth the scale is read at is itself an estimate).
 
     Returns:
         ``(stick, factor)``: the (possibly) scaled drawing and the factor (1 when nothing
@@ -51,7 +54,8 @@ def normalize_figure(stick: StickFigure, lengths_3d: np.ndarray, pixels_per_unit
     """
     e = stick.drawn_edges()
     drawn = np.linalg.norm(stick.points[e[:, 1]] - stick.points[e[:, 0]], axis=1)
-    limit = lengths_3d[e[:, 1]] * pixels_per_unit * tolerance
+    ppu = np.broadcast_to(np.asarray(pixels_per_unit, float), (stick.points.shape[0],))
+    limit = lengths_3d[e[:, 1]] * ppu[e[:, 1]] * tolerance
     factor = float(min(1.0, np.min(limit / np.maximum(drawn, 1e-9))))
     if factor >= 1.0:
         return stick, 1.0

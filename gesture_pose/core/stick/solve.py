@@ -201,12 +201,19 @@ def _moving_pairs(model: PoseModel, caps: Capsules) -> Capsules:
     return dataclasses.replace(caps, pairs=caps.pairs[varies])
 
 
-def _rigid_lengths(model: PoseModel, lengths: np.ndarray, samples: int = 32) -> np.ndarray:
-    """Edge lengths ``(J,)``, infinite for edges that stretch under posing.
+def _edge_spans(model: PoseModel, lengths: np.ndarray, samples: int = 256
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid and longest lengths of the stick edges, each ``(J,)`` by the child joint.
 
     The pelvis-knee edge stretches (the hip joint is off the edge). An edge is rigid when
     its length stays within 0.1 % over random poses in the genes' ranges (deterministic).
-    Only rigid edges tell the drawing's scale: foreshortening can only shorten them.
+    Only rigid edges tell the drawing's scale: foreshortening can only shorten them. The
+    longest length over the same poses (at least the rest one) bounds an edge's
+    projection (Section 4.1.3's normalization).
+
+    Returns:
+        ``(rigid, longest)``: rigid lengths, infinite for the edges that stretch, and the
+        longest lengths.
     """
     b = model.bounds(np.zeros(3), 0.0)
     u = np.random.default_rng(0).random((samples, b.shape[0]))
@@ -218,6 +225,47 @@ def _rigid_lengths(model: PoseModel, lengths: np.ndarray, samples: int = 32) -> 
     out = np.full(fig.n_joints, np.inf)
     rigid = np.ptp(d, axis=0) <= 1e-3 * np.maximum(lengths[child], 1e-9)
     out[child[rigid]] = lengths[child[rigid]]
+    longest = lengths.copy()
+    longest[child] = np.maximum(lengths[child], d.max(0))
+    return out, longest
+
+
+def _nearest_scales(camera: Camera, root: np.ndarray, figure: CharacterFigure,
+                    lengths: np.ndarray) -> np.ndarray:
+    """Largest image scale of the edge ending at each joint, pixels per unit, ``(J,)``.
+
+    An edge can come no nearer the eye than the root's depth less the length of the
+    stick path from the root to its end (Section 4.1.3's maximum projection, with the
+    root at its estimated depth); at most 4 times the root's scale.
+    """
+    z = float(camera.depth(root[None])[0])
+    ppu = camera.pixels_per_unit(z)
+    if not camera.is_perspective:
+        return np.full(figure.n_joints, ppu)
+    reach = np.zeros(figure.n_joints)
+    for j in range(1, figure.n_joints):  # parents first
+        reach[j] = reach[figure.joint_parents[j]] + lengths[j]
+    return ppu * z / np.maximum(z - reach, 0.25 * z)
+
+
+def _free_of_environment(figure: CharacterFigure, skeleton: Skeleton, caps: Capsules,
+                         env_pins: tuple[EnvPin, ...], height: float) -> np.ndarray:
+    """Capsules checked against the environment (Eq. 11), shape ``(c,)`` bool.
+
+    A joint pinned to a surface rests on it with the part below it: the short end chain
+    under an ankle or a wrist (the foot, the hand; less than 15 % of the height) is left
+    out. A pinned joint with a long chain below it (a pelvis lying on the floor) leaves
+    out its own bone only: the limbs it carries still may not pass through the floor.
+    """
+    out = np.ones(len(caps.bones), bool)
+    for p in env_pins:
+        if figure.joint_at_tail[p.joint]:
+            continue
+        b = int(figure.joint_bones[p.joint])
+        below = skeleton.descendants(b)
+        if skeleton.lengths[below].sum() > 0.15 * height:
+            below = np.array([b])
+        out &= ~np.isin(caps.bones, below)
     return out
 
 
@@ -368,12 +416,15 @@ def _solve(inp: StickInput) -> StickResult:
     seat_pixel = stick.points[pelvis_j]
     if inp.use_contact and len(stick.contacts):
         seat_pixel = stick.contacts[0]
-    rigid = _rigid_lengths(model, lengths)
+    rigid, longest = _edge_spans(model, lengths)
     drawn = stick.drawn_edges()[:, 1]
     ppu = drawing_scale(stick, rigid if np.isfinite(rigid[drawn]).any() else lengths)
     depth_guess = _depth_for_scale(cam, ppu, stick.points[pelvis_j])
     root_range = 0.3 * height
     grid = None
+    # Distances are looked up to beyond the thickest capsule (a capsule thicker than the
+    # grid's reach would read as always penetrating).
+    reach = max(0.2, 1.1 * float(caps.radii.max(initial=0.0)))
     if env is not None and len(env.triangles):
         o, d = cam.rays(seat_pixel[None])
         probe = cam.unproject_at_depth(stick.points[pelvis_j][None], depth_guess)[0]
@@ -381,7 +432,7 @@ def _solve(inp: StickInput) -> StickResult:
         # The distance grid (for a collision-free spot on the seat) only once a seat is
         # found: standing or lying, it is built around the root instead.
         if find_seat(env, o[0], d[0], knee_h, hip_r, None, near=0.5 * dist, far=1.6 * dist):
-            grid = distance_grid(env, probe, 0.75 * height)
+            grid = distance_grid(env, probe, 0.75 * height, max_distance=reach)
             seat = find_seat(env, o[0], d[0], knee_h, hip_r, grid, near=0.5 * dist,
                              far=1.6 * dist)
     if seat is not None:
@@ -398,22 +449,21 @@ def _solve(inp: StickInput) -> StickResult:
                           else FREE_ROOT_RANGE_HORIZONTAL) * height
         root = cam.unproject_at_depth(stick.points[pelvis_j][None], depth)[0]
         if env is not None and len(env.triangles):
-            grid = distance_grid(env, root, 0.75 * height)
-    ppu_root = cam.pixels_per_unit(float(cam.depth(root[None])[0]))
-    stick, factor = normalize_figure(stick, lengths, ppu_root, pelvis_j)
+            grid = distance_grid(env, root, 0.75 * height, max_distance=reach)
+    stick, factor = normalize_figure(stick, longest,
+                                     _nearest_scales(cam, root, figure, longest), pelvis_j)
     if factor < 1.0:
         warnings.append(f"The drawing was scaled by {factor:.2f}: some bones were drawn "
                         "longer than the character's.")
+        # The pins' targets lie on the eye rays through the drawn joints: follow them.
+        env_pins, limb_pins = resolve_pins(figure, stick, inp.env_pins, inp.limb_pins,
+                                           offsets, cam, standing)
     support = [p.target - p.normal * offsets[p.joint] for p in env_pins
                if p.normal @ up > np.cos(np.radians(30.0))]
     if seat is not None:
         side = normalize(np.cross(up, figure.forward))
         support += [seat.point + side * hip_r, seat.point - side * hip_r]
-    env_caps = np.ones(len(caps.bones), bool)
-    for p in env_pins:
-        after = sk.descendants(int(figure.joint_bones[p.joint]))
-        if not figure.joint_at_tail[p.joint]:
-            env_caps &= ~np.isin(caps.bones, after)
+    env_caps = _free_of_environment(figure, sk, caps, env_pins, height)
     # Seated, the hips rest on the seat's plane (Eq. 10 on the pelvis; free to slide).
     seat_pin = () if seat is None else (EnvPin(pelvis_j, root, up.copy()),)
     # A body whose pelvis the user pinned to a surface lies or rests on it: its balance
