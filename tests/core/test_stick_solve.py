@@ -136,6 +136,34 @@ def test_reconstructs_a_standing_pose_with_feet_pinned():
     assert np.array_equal(again.suggestions[0].genes, res.suggestions[0].genes)
 
 
+def test_pinned_feet_stand_flat_on_the_floor():
+    # Both ankles pinned to the floor: each foot ends sole down and flat on it, its lowest
+    # skin (capsules) on the pin's contact plane, neither sunk nor tilted up.
+    sk, fig, cam, stick, pins, _ = _stand_problem(noise=1.0, seed=1)
+    res = solve_stick(StickInput(sk, cam, stick=stick, environment=chair_env(),
+                                 env_pins=pins, seed=1, n_suggestions=2,
+                                 ga=GAConfig(population=384, max_generations=8)))
+    model = PoseModel(sk, fig, Pose.identity(sk.n_bones))
+    caps = capsules_from_mesh(sk)
+    up = np.array([0.0, 0.0, 1.0])
+
+    def lowest(heads, tails, side):
+        chain = np.isin(caps.bones, sk.descendants(sk.index(f"foot.{side}")))
+        start, end = caps.segments(heads, tails)
+        return float(np.min(np.minimum(start[0, chain] @ up, end[0, chain] @ up) -
+                            caps.radii[chain]))
+
+    for s in res.suggestions:
+        heads, tails, frames = model.forward(s.genes[None])
+        for side in "LR":
+            foot = sk.index(f"foot.{side}")
+            sole_up = frames[0, foot] @ sk.rest_frames[foot].T @ up
+            assert np.degrees(np.arccos(min(sole_up @ up, 1.0))) < 0.5
+            contact = pins[0 if side == "L" else 1].point @ up
+            assert abs(lowest(heads, tails, side) - contact) < 2e-3
+        assert np.all(s.pin_residuals < 1e-6)
+
+
 def test_seat_found_behind_the_drawn_hips():
     env = chair_env()
     cam = Camera.look_at([2.0, -4.5, 1.4], [0, -0.3, 0.8], width=1000, height=800)

@@ -2,15 +2,18 @@
 
 A hand or foot resting on the environment is turned, over a grid of its joint's range of
 motion, to the orientation with the least penetration of the environment (and the least
-energy). Then every pinned joint is placed exactly on its target by a bounded least-squares
-solve on the genes of the limb above it (and the root's translation for environment pins;
-the spine as well when a limb pin is out of the arm's reach).
+energy); a foot standing on it is turned sole down, flat on the surface. Then every
+pinned joint is placed exactly on its target by a bounded least-squares solve on the
+genes of the limb above it (and the root's translation for environment pins; the spine
+as well when a limb pin is out of the arm's reach, and the whole body, its environment
+pins held, when it is out of the spine's too).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..rotations import exp_map, log_map, rotation_between
 from .kinematics import PoseModel
 from .objective import EnvPin, LimbPin, StickObjective
 from .refine import place_joints
@@ -106,10 +109,80 @@ def _lie_on_chain(objective: StickObjective, x: np.ndarray, pin: EnvPin) -> EnvP
     return EnvPin(pin.joint, target, n, pin.stands)
 
 
+def _stands_upright(model: PoseModel, heads: np.ndarray, tails: np.ndarray,
+                    pin: EnvPin) -> np.ndarray:
+    """Whether the chain above a standing pin (a shin) is within 60 degrees of its normal.
+
+    Args:
+        model: Genes -> bones.
+        heads: Bone heads, shape ``(P, n, 3)``.
+        tails: Bone tails, shape ``(P, n, 3)``.
+        pin: The pin.
+
+    Returns:
+        Shape ``(P,)`` bool.
+    """
+    parent = model.skeleton.parents[int(model.figure.joint_bones[pin.joint])]
+    if parent < 0:
+        return np.zeros(len(heads), bool)
+    d = tails[:, parent] - heads[:, parent]
+    return np.abs(d @ pin.normal) > 0.5 * np.linalg.norm(d, axis=-1)
+
+
+def _sole_tilt(model: PoseModel, frames: np.ndarray, pin: EnvPin) -> np.ndarray:
+    """``1 - cos`` of the angle between a standing end bone's sole normal and the pin's.
+
+    The sole faces down at rest: its normal is the character's up carried by the end
+    bone (the foot at an ankle). Zero when the foot stands flat on the surface.
+
+    Args:
+        model: Genes -> bones.
+        frames: Posed bone frames, shape ``(P, n, 3, 3)``.
+        pin: The pin (its joint starts the end bone).
+
+    Returns:
+        Shape ``(P,)``, in ``[0, 2]``.
+    """
+    b = int(model.figure.joint_bones[pin.joint])
+    local = model.skeleton.rest_frames[b].T @ model.figure.up
+    return 1.0 - (frames[:, b] @ local) @ pin.normal
+
+
+def _flatten(objective: StickObjective, x: np.ndarray, bounds: np.ndarray, pin: EnvPin,
+             genes: np.ndarray) -> np.ndarray:
+    """The end bone's genes that put its sole flat on the pin's surface.
+
+    The smallest world turn ``R`` taking the sole normal onto the surface's (the turn
+    about the normal, which the sole does not fix, stays as it is) becomes the local
+    rotation ``exp(B g') = exp(B g) F^T R F`` (``F`` the bone's posed frame), clipped to
+    the bounds. Its genes do not move the pinned joint at the bone's head.
+    """
+    model = objective.model
+    b = int(model.figure.joint_bones[pin.joint])
+    group = next(g for g, idx in zip(model.figure.groups, model.group_genes, strict=True)
+                 if np.array_equal(idx, genes))
+    if group.bases.shape[-1] != 3 or len(group.bones) != 1:
+        return x
+    B = group.bases[0]
+    _, _, frames = model.forward(x[None])
+    F = frames[0, b]
+    sole = F @ (model.skeleton.rest_frames[b].T @ model.figure.up)
+    R = rotation_between(sole, pin.normal)
+    phi = log_map(exp_map(B @ x[genes]) @ F.T @ R @ F)
+    out = x.copy()
+    out[genes] = np.clip(B.T @ phi, bounds[genes, 0], bounds[genes, 1])
+    return out
+
+
 def finish_pose(objective: StickObjective, x: np.ndarray, bounds: np.ndarray,
                 env_pins: tuple[EnvPin, ...], limb_pins: tuple[LimbPin, ...]
                 ) -> tuple[np.ndarray, tuple[EnvPin, ...]]:
     """Collision-free hands and feet on the environment, then pins placed exactly.
+
+    A foot standing on the surface it is pinned to (its shin within 60 degrees of the
+    normal) is turned sole down, flat on it (grid search, then least squares), again
+    after the pins are placed; other hands and feet take the grid orientation with the
+    least penetration of the environment.
 
     A joint that stands on the chain below it (``EnvPin.stands``, an ankle) on a limb
     lying along the surface has its target lifted by its clearance in the pose (Eq. 10
@@ -140,21 +213,30 @@ def finish_pose(objective: StickObjective, x: np.ndarray, bounds: np.ndarray,
         grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, genes.size)
         X = np.repeat(x[None], len(grid), 0)
         X[:, genes] = grid
-        heads, tails, _ = model.forward(X)
+        heads, tails, frames = model.forward(X)
         b = np.array(sorted(set(model.skeleton.descendants(int(fig.joint_bones[pin.joint])))))
         caps = objective.capsules
         sel = np.isin(caps.bones, b)
-        pen = np.zeros(len(X))
-        if np.any(sel):
-            u = np.linspace(0, 1, 5)
-            start, end = caps.segments(heads, tails)
-            pts = start[:, sel, None] * (1 - u)[:, None] + end[:, sel, None] * u[:, None]
-            d, _ = objective.grid.sample(pts, limit=1.001 * caps.radii[sel].max())
-            pen = np.sum(np.maximum(caps.radii[sel][None, :, None] - d, 0) ** 2, (1, 2))
+        standing = pin.stands and bool(_stands_upright(model, heads[:1], tails[:1], pin)[0])
         e, _ = objective.evaluate(X, collision=False)
-        score = e + 100.0 * pen / (0.05 * objective.height) ** 2
+        if standing:
+            # A foot standing on the surface: sole down and flat (its pin puts the ankle
+            # at its standing height, so the flat sole touches). The capsules, coarser
+            # than the skin, would read a flat foot as sunk into the floor.
+            score = e + 50.0 * _sole_tilt(model, frames, pin)
+        else:
+            pen = np.zeros(len(X))
+            if np.any(sel):
+                u = np.linspace(0, 1, 5)
+                start, end = caps.segments(heads, tails)
+                pts = start[:, sel, None] * (1 - u)[:, None] + end[:, sel, None] * u[:, None]
+                d, _ = objective.grid.sample(pts, limit=1.001 * caps.radii[sel].max())
+                pen = np.sum(np.maximum(caps.radii[sel][None, :, None] - d, 0) ** 2, (1, 2))
+            score = e + 100.0 * pen / (0.05 * objective.height) ** 2
         score += 1e-3 * np.sum((grid - x[genes]) ** 2, 1)
         x = X[int(np.argmin(score))]
+        if standing:
+            x = _flatten(objective, x, bounds, pin, genes)
     env_pins = tuple(_lie_on_chain(objective, x, p) if p.stands else p for p in env_pins)
     # Attachment enforcement: pinned joints exactly on their targets (the limbs and,
     # when several limbs are pinned, the root's translation move).
@@ -163,6 +245,14 @@ def finish_pose(objective: StickObjective, x: np.ndarray, bounds: np.ndarray,
                                          [np.arange(3)]))
         x, _ = place_joints(objective, x, bounds, np.array([p.joint for p in env_pins]),
                             np.array([p.target for p in env_pins]), genes)
+        # Placing the ankles turned the shins: the standing feet flat again (their genes
+        # do not move the ankles).
+        heads, tails, _ = model.forward(x[None])
+        for pin in env_pins:
+            genes_end = _end_group_genes(model, pin.joint)
+            if (pin.stands and genes_end.size and objective.grid is not None
+                    and _stands_upright(model, heads, tails, pin)[0]):
+                x = _flatten(objective, x, bounds, pin, genes_end)
     for pin in limb_pins:
         heads, tails, _ = model.forward(x[None])
         J = fig.joint_positions(heads, tails)[0]
@@ -177,6 +267,37 @@ def finish_pose(objective: StickObjective, x: np.ndarray, bounds: np.ndarray,
                 heads, tails, _ = model.forward(x[None])
                 J = fig.joint_positions(heads, tails)[0]
                 target = (1 - pin.s) * J[a] + pin.s * J[b]
-                x, _ = place_joints(objective, x, bounds, np.array([pin.joint]),
-                                    target[None], genes)
+                x, res = place_joints(objective, x, bounds, np.array([pin.joint]),
+                                      target[None], genes)
+            if res.max() > 1e-6 and env_pins:
+                x = _reach_with_body(objective, x, bounds, pin, env_pins, genes)
     return x, env_pins
+
+
+def _reach_with_body(objective: StickObjective, x: np.ndarray, bounds: np.ndarray,
+                     pin: LimbPin, env_pins: tuple[EnvPin, ...], genes: np.ndarray,
+                     rounds: int = 4) -> np.ndarray:
+    """A limb pin out of reach of the limb and the spine: the whole body turns as well.
+
+    The root's rotation and translation and the limbs of the environment pins join
+    ``genes``; the environment-pinned joints stay on their targets while the limb-pinned
+    joint goes to its point on the limb, which moves with the body (re-aimed for a few
+    rounds).
+    """
+    model = objective.model
+    fig = model.figure
+    joints = np.array([pin.joint] + [p.joint for p in env_pins])
+    more = np.unique(np.concatenate([genes, np.arange(6)] +
+                                    [_chain_genes(model, p.joint) for p in env_pins]))
+    a, b = pin.limb
+    for _ in range(rounds):
+        heads, tails, _ = model.forward(x[None])
+        J = fig.joint_positions(heads, tails)[0]
+        target = (1 - pin.s) * J[a] + pin.s * J[b]
+        x, res = place_joints(objective, x, bounds, joints,
+                              np.array([target] + [p.target for p in env_pins]), more)
+        heads, tails, _ = model.forward(x[None])
+        J = fig.joint_positions(heads, tails)[0]
+        if np.linalg.norm(J[pin.joint] - (1 - pin.s) * J[a] - pin.s * J[b]) < 1e-6:
+            break
+    return x
