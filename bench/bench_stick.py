@@ -8,7 +8,12 @@ sample scene, none on the CMU poses; hands and feet left out), then reconstructe
    pelvis) pinned to the floor and, leaning, the wrists to the table, where the eye ray
    through the drawn joint meets them.
 2. **CMU poses** retargeted onto the Adventurer (``../shared/eval-assets``, skipped when
-   absent), no environment and no pins.
+   absent), the paper's test: a floor under the posed character (at its lowest skin
+   point) and the drawn joints that touch it pinned to it as a user pins them (the eye
+   ray through the drawn joint; joints whose height above the floor, less the height
+   their pin gives them, is within :data:`CONTACT` of the lowest one's). The full run
+   also solves every pose with no environment and no pins (the root's depth then
+   follows the drawing's scale only).
 
 Metrics: mean 3D error over the drawn joints, in % of the character's height, of the first
 suggestion and of the best of the suggestions (single-view depth is ambiguous; the user
@@ -19,6 +24,8 @@ the targets are under 3 % and under 1 s.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
@@ -111,16 +118,61 @@ def sample_table(quick: bool) -> tuple[str, list[str], list[list]]:
             rows)
 
 
-def cmu_table(quick: bool) -> tuple[str, list[str], list[list]] | None:
-    """Table 2: CMU poses on the Adventurer, drawn from the front-right."""
-    if not ADVENTURER.exists():
-        return None
+#: Joints whose height above the floor is within this of the lowest one's touch it
+#: (metres; over the height their pin would give them).
+CONTACT = 0.05
+
+
+def _floor(z: float, half: float = 10.0):
+    """A 5 cm thick floor slab whose top is at height ``z`` (world units)."""
+    from gesture_pose.core.stick.environment import Environment
+
+    v = np.array([(x, y, h) for x in (-half, half) for y in (-half, half)
+                  for h in (z - 0.05, z)], float)
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    tris = [t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))]
+    return Environment(v, np.array(tris), np.zeros(len(tris), int), ("Floor",))
+
+
+def contact_pins(env, cam, figure, stick, truth: np.ndarray, offsets: np.ndarray,
+                 floor: float, contact: float = CONTACT) -> tuple:
+    """Pins of the drawn joints that touch the floor in the truth pose, as a user pins them.
+
+    A joint touches when its height above the floor, less the height its pin lifts it by
+    (``offsets``: an ankle's standing height, a wrist's radius), is within ``contact`` of
+    the lowest such clearance; it is pinned where the eye ray through its drawn node meets
+    the floor (:func:`~gesture_pose.core.stick.pins.pin_candidates`).
+    """
+    from gesture_pose.core.stick.pins import EnvPinSpec, pin_candidates
+
+    clear = truth @ figure.up - floor - offsets
+    clear[~stick.present] = np.inf
+    touch = np.flatnonzero(clear <= clear.min() + contact)
+    pins = []
+    for j in touch:
+        hit = pin_candidates(env, cam, stick.points[j])[0]
+        pins.append(EnvPinSpec(figure.joint_names[j], hit.point, hit.normal, "Floor"))
+    return tuple(pins)
+
+
+def cmu_cases(quick: bool):
+    """The CMU poses on the Adventurer, drawn from the front-right, one per frame.
+
+    Yields:
+        ``(frame, StickInput with a floor under the character and its contact joints
+        pinned, the same without environment and pins, truth joints (J, 3), drawn joints
+        (J,) bool, height)``.
+    """
     import bpy
 
     from gesture_pose.blender.read_armature import read_armature
+    from gesture_pose.blender.read_mesh import read_skinned_meshes
     from gesture_pose.blender.read_view import camera_from_object
+    from gesture_pose.core.stick.capsules import capsules_from_mesh
     from gesture_pose.core.stick.figure import humanoid_figure
-    from gesture_pose.core.stick.solve import StickInput, solve_stick
+    from gesture_pose.core.stick.graph import StickFigure
+    from gesture_pose.core.stick.pins import pin_offsets
+    from gesture_pose.core.stick.solve import StickInput
     from sample_scenes import builders
 
     scene, arm, rest, meshes = load_adventurer()
@@ -131,17 +183,18 @@ def cmu_table(quick: bool) -> tuple[str, list[str], list[list]] | None:
     side = np.cross(fig.forward, fig.up)
     view = fig.forward + 0.4 * side + 0.25 * fig.up
     cam_obj = builders.add_camera(meshes[0] if meshes else arm, direction=tuple(view))
-    from gesture_pose.blender.read_mesh import read_skinned_meshes
     mesh = read_skinned_meshes(arm, sk)
+    offsets = pin_offsets(fig, sk, capsules_from_mesh(sk, mesh.rest_vertices, mesh.weights),
+                          mesh.rest_vertices, mesh.weights)
     frames = range(1, 41, 13) if quick else range(1, 41)
-    stats = []
-    from gesture_pose.core.stick.graph import StickFigure
     for k in frames:
         scene.frame_set(k)
         bpy.context.view_layer.update()
         data = read_armature(arm)
         state = sk.forward(data.pose)
         truth = fig.joint_positions(state.heads, state.tails)
+        # The floor under the posed character (the CMU root height is not carried).
+        floor = float(np.min(read_skinned_meshes(arm, sk).deformed_vertices @ fig.up))
         # Frame the posed character: the camera follows the pelvis.
         cam_obj.location = (np.array(cam_obj.location) - np.array(
             cam_obj.get("_target", truth[0])) + truth[0]).tolist()
@@ -153,12 +206,32 @@ def cmu_table(quick: bool) -> tuple[str, list[str], list[list]] | None:
         pts[~present] = np.nan
         stick = StickFigure(fig.joint_names, pts, present, fig.joint_parents,
                             np.zeros((0, 2)))
-        res = solve_stick(StickInput(sk, cam, stick=stick, mesh_vertices=mesh.rest_vertices,
-                                     mesh_weights=mesh.weights, seed=k))
-        stats.append(_errors(res, truth, present, height) +
-                     (res.timings["total"], res.timings["genetic"], res.timings["refine"]))
-    return (f"CMU poses on the Adventurer ({height:.2f} m, no environment, no pins)", HEADERS,
-            [_row("cmu", stats)])
+        env = _floor(floor)
+        pins = contact_pins(env, cam, fig, stick, truth, offsets, floor)
+        free = StickInput(sk, cam, stick=stick, mesh_vertices=mesh.rest_vertices,
+                          mesh_weights=mesh.weights, seed=k)
+        pinned = dataclasses.replace(free, environment=env, env_pins=pins)
+        yield k, pinned, free, truth, present, height
+
+
+def cmu_table(quick: bool) -> tuple[str, list[str], list[list]] | None:
+    """Table 2: CMU poses on the Adventurer, floor and contact pins (and none, full run)."""
+    if not ADVENTURER.exists():
+        return None
+    from gesture_pose.core.stick.solve import solve_stick
+
+    rows = {"floor, contacts pinned": [], "no environment, no pins": []}
+    height = 0.0
+    for _, pinned, free, truth, present, height in cmu_cases(quick):
+        for case, inp in zip(rows, (pinned, free), strict=True):
+            if quick and inp is free:
+                continue
+            res = solve_stick(inp)
+            rows[case].append(_errors(res, truth, present, height) +
+                              (res.timings["total"], res.timings["genetic"],
+                               res.timings["refine"]))
+    return (f"CMU poses on the Adventurer ({height:.2f} m)", HEADERS,
+            [_row(case, stats) for case, stats in rows.items() if stats])
 
 
 def run(quick: bool) -> list[tuple[str, list[str], list[list]]]:
