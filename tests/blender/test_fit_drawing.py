@@ -52,22 +52,32 @@ def _trace(arm, target="Traced Contours", **kwargs):
 # contours. Measured on these drawings (this camera, framed on the rest pose; bench machine):
 #
 #   pose            median  mean  max   joints within 4%
-#   step            0.9     1.4   5.6   92%
-#   rest            1.6     2.0   4.6   92%
-#   raise_left_arm  0.9     3.2   33    92%  (the raised forearm and hand folded back)
-#   reach           1.3     2.1   8.1   84%  (was 0.9 / 10 / 39 / 68% with both arm chains
-#                                            reversed, shoulders at the hands: fixed by
-#                                            searching shoulders and clavicles rigidly)
+#   rest            1.7     1.5   3.6   100%
+#   step            1.0     1.8   5.1   88%  (the left forearm and hand, swung back, drawn
+#                                            shorter than found: wrist 5.1, hand 4.9)
+#   raise_left_arm  1.0     3.2   33    92%  (the raised forearm and hand folded back; the
+#                                            hand leaves this camera's frame)
+#   reach           2.0     2.4   8.1   88%  (the right arm, stretched towards the viewer,
+#                                            found shorter: elbow 5.2, wrist 6.7, hand 8.1)
+#   crouch          3.2     3.6   10    64%  (thighs pointing at the viewer; hips, knees
+#                                            and hands 4-10)
 #
-# so the check is not met (see test_every_joint_within_4_percent, an expected failure). The
-# limits below are those measurements plus a margin for platform noise only (half a percent
-# on the median, one joint on the share): the median error, and the share of joints the
-# issue's 4% already holds for.
+# Before the view-length range of the length term and the limb-end moves of the refinement
+# (see docs/gesture.md): rest 1.6 / 1.9 / 4.6 / 92%, step 0.9 / 1.4 / 5.6 / 92%,
+# raise_left_arm 0.8 / 3.2 / 33 / 92%, reach 1.3 / 2.1 / 8.1 / 84%, crouch 2.7 / 3.9 / 10 /
+# 56%. The reach drawing's median rose (its refined energy is lower than before but the
+# arms' energy minimum is not at the true joints); its share within 4% rose too.
+#
+# So the check holds for the rest pose only (test_every_joint_within_4_percent; the others
+# are expected failures with the reasons above). The limits below are those measurements
+# plus a margin for platform noise only (half a percent on the median, one joint on the
+# share): the median error, and the share of joints the issue's 4% already holds for.
 @pytest.mark.parametrize("pose_name,median_limit,within_limit", [
-    ("step", 1.5, 0.88),
-    ("rest", 2.1, 0.88),
+    ("step", 1.5, 0.84),
+    ("rest", 2.2, 0.96),
     ("raise_left_arm", 1.5, 0.88),
-    ("reach", 1.8, 0.80),
+    ("reach", 2.5, 0.84),
+    ("crouch", 3.7, 0.60),
 ])
 def test_fit_finds_the_joints_of_traced_poses(registered, pose_name, median_limit,
                                               within_limit):
@@ -88,9 +98,17 @@ def _fit_traced(pose_name: str):
     return emb, _errors(arm, emb, camera), n_strokes
 
 
-@pytest.mark.xfail(strict=True, reason="issue 3's accuracy target is not met yet: the worst "
-                   "joint is 4.6-33% of the height off (see the table above)")
-@pytest.mark.parametrize("pose_name", ["step", "rest"])
+def _not_yet(reason: str):
+    return pytest.mark.xfail(strict=True, reason=f"issue 3's 4% is not met: {reason}")
+
+
+@pytest.mark.parametrize("pose_name", [
+    "rest",
+    pytest.param("step", marks=_not_yet("left wrist and hand 5.1 and 4.9% off")),
+    pytest.param("raise_left_arm", marks=_not_yet("raised forearm and hand folded back, 33%")),
+    pytest.param("reach", marks=_not_yet("right arm towards the viewer found short, 8.1%")),
+    pytest.param("crouch", marks=_not_yet("thighs towards the viewer, hips to hands 4-10%")),
+])
 def test_every_joint_within_4_percent(registered, pose_name):
     emb, err, _ = _fit_traced(pose_name)
     assert err.max() <= 4.0, dict(zip(emb.solving.joint_bones, err.round(1), strict=True))

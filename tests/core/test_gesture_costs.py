@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from gesture_pose.core.gesture.costs import CostParams, crossing_stations, pair_cost, rigid_cost
+from gesture_pose.core.gesture.costs import (
+    CostParams,
+    crossing_stations,
+    length_cost,
+    pair_cost,
+    rigid_cost,
+)
 from gesture_pose.core.gesture.preprocess import preprocess
 from gesture_pose.core.stroke import Stroke
 
@@ -97,3 +103,40 @@ def test_naturalness_reference_angle_from_the_view_or_the_rest_pose():
     at_rest = make_problem(d, solving, 100.0, seen, CostParams(view_angles=False))
     assert in_view.rest_angle[tail] < 1e-6
     np.testing.assert_allclose(at_rest.rest_angle[tail], np.pi / 2)
+
+
+def test_length_term_accepts_the_range_between_view_and_full_length():
+    """Eq. 2 measures the drawn length against the bone's length (sigma / 3 when longer);
+    with ``view_lengths`` a bone foreshortened in the view costs nothing anywhere between
+    its length seen in the view and its full length."""
+    drawn = np.array([20.0, 40.0, 45.0, 50.0, 56.0])
+    paper = length_cost(drawn, 50.0, 10.0)
+    assert paper[3] == 0.0 and np.all(paper[[0, 1, 2, 4]] > 0.0)
+    np.testing.assert_allclose(paper[4], 1.0 - np.exp(-36.0 / (2.0 * (10.0 / 3.0) ** 2)))
+    view = length_cost(drawn, 50.0, 10.0, shortest=40.0)
+    np.testing.assert_allclose(view[1:4], 0.0)
+    # Shorter than the view length: the paper's Gaussian from the view length; longer than
+    # the full length: unchanged.
+    np.testing.assert_allclose(view[0], length_cost(np.array(20.0), 40.0, 10.0))
+    np.testing.assert_allclose(view[4], paper[4])
+    # A view length above the bone length (nearer than the mean depth) widens it upwards.
+    np.testing.assert_allclose(length_cost(np.array([52.0]), 50.0, 10.0, shortest=53.0), 0.0)
+
+
+def test_problem_gives_the_view_length_only_with_view_lengths():
+    from gesture_pose.core.gesture.mrf import make_problem
+    from gesture_pose.core.gesture.solving import solving_skeleton
+
+    from .fixtures import chain_skeleton
+
+    # A chain whose second bone points at the viewer half-way: seen at half its length.
+    sol = solving_skeleton(chain_skeleton(np.array([[0.0, 0, 0], [1.0, 0, 0],
+                                                    [1.5, -np.sqrt(0.75), 0]])))
+    view = np.array([[0.0, 0.0], [100.0, 0.0], [150.0, 0.0]])
+    d = preprocess(_limb(None))
+    problem = make_problem(d, sol, 100.0, view)
+    tail = sol.tail_joint[1]
+    np.testing.assert_allclose(problem.link_length[tail], 100.0)
+    np.testing.assert_allclose(problem.shortest(tail), 50.0)
+    paper = make_problem(d, sol, 100.0, view, CostParams(view_lengths=False))
+    assert paper.shortest(tail) is None

@@ -48,6 +48,10 @@ class CostParams:
         view_angles: Measure the naturalness ``Cn`` against the angle between the bones in
             the bind pose seen in the view (not in the paper); False uses their 3D angle in
             the bind pose.
+        view_lengths: A bone foreshortened in the bind pose seen in the view (a foot
+            pointing at the viewer) may be drawn at any length between its length in the
+            view and its full length at no cost in ``Cl`` (not in the paper); False
+            measures the drawn length against the full length only (Eq. 2).
     """
 
     alpha: float = np.radians(15.0)
@@ -62,6 +66,7 @@ class CostParams:
     w_direction: float = 0.75
     view_offsets: bool = True
     view_angles: bool = True
+    view_lengths: bool = True
 
 
 def circle_alignment(drawing: Drawing, centres: np.ndarray, radii: np.ndarray,
@@ -137,22 +142,31 @@ def unary_from_aligned(aligned: np.ndarray, terminal: bool, params: CostParams |
     return cost
 
 
-def length_cost(dist: np.ndarray, length: float, sigma: float) -> np.ndarray:
+def length_cost(dist: np.ndarray, length: float, sigma: float,
+                shortest: float | None = None) -> np.ndarray:
     """Length term ``Cl`` (Eq. 2): Gaussian misfit, three times stricter when too long.
 
     Args:
         dist: Drawn bone lengths, pixels, any shape.
         length: Expected bone length, pixels.
         sigma: Standard deviation, pixels.
+        shortest: Another expected length (the bone's length seen in the view, see
+            ``view_lengths``): every drawn length between it and ``length`` costs nothing,
+            and the misfit is measured from the nearer end of that range.
     """
-    s = np.where(dist > length, sigma / 3.0, sigma)
-    return 1.0 - np.exp(-((dist - length) ** 2) / (2.0 * s**2))
+    lo = hi = float(length)
+    if shortest is not None:
+        lo, hi = min(lo, float(shortest)), max(hi, float(shortest))
+    target = np.clip(dist, lo, hi)
+    s = np.where(dist > hi, sigma / 3.0, sigma)
+    return 1.0 - np.exp(-((dist - target) ** 2) / (2.0 * s**2))
 
 
 def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
               sa: np.ndarray, pb: np.ndarray, rb: np.ndarray, gb: np.ndarray, sb: np.ndarray,
               length: float, params: CostParams | None = None,
-              stations: int = 8, blocked: np.ndarray | None = None) -> np.ndarray:
+              stations: int = 8, blocked: np.ndarray | None = None,
+              shortest: float | None = None) -> np.ndarray:
     """Pairwise bone cost ``E(i, j) = 1 - (1 - Cl)(1 - Ccf)(1 - Wc Cc)``.
 
     ``Ccf`` samples the bone's two outlines (offset by the interpolated joint radius) at
@@ -178,6 +192,8 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
         stations: Samples along the bone per outline.
         blocked: Contour samples claimed by other body parts, which do not count for this
             bone's conformity (the non-overlap constraint), ``(N,)`` bool.
+        shortest: Shortest drawn length the length term accepts at no cost, pixels (see
+            :func:`length_cost`); None: only ``length``.
 
     Returns:
         Costs, shape ``(Ka, Kb)``.
@@ -191,7 +207,7 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     dist = np.linalg.norm(d, axis=2)
     u = d / np.maximum(dist, 1e-9)[..., None]
     perp = np.stack([-u[..., 1], u[..., 0]], axis=-1)
-    cl = length_cost(dist, length, params.sigma_length * drawing.diagonal)
+    cl = length_cost(dist, length, params.sigma_length * drawing.diagonal, shortest)
     t = (np.arange(stations) + 0.5) / stations
     axis = pa[:, None, None, :] + t[None, None, :, None] * d[:, :, None, :]
     r_t = (1.0 - t)[None, None, :] * ra[:, None, None] + t[None, None, :] * rb[None, :, None]

@@ -239,6 +239,16 @@ class MatchProblem:
             return None
         return self.blocked[b]
 
+    def shortest(self, j: int) -> float | None:
+        """Shortest drawn length of joint ``j``'s bone that costs no length term, pixels.
+
+        With ``view_lengths``, the bone's length in the view at the current pose when it is
+        foreshortened there (None otherwise: Eq. 2 as in the paper).
+        """
+        if not self.params.view_lengths:
+            return None
+        return float(np.linalg.norm(self.link_offset[j]))
+
     def has_triplet(self, j: int) -> bool:
         """Whether joint ``j`` closes a triplet (two consecutive bone links)."""
         return bool(np.isfinite(self.rest_angle[j]))
@@ -312,7 +322,7 @@ def link_table(problem: MatchProblem, j: int, a: JointCandidates,
     return prior + pair_cost(problem.drawing, a.positions, a.radii, a.group, a.side,
                              b.positions, b.radii, b.group, b.side, problem.link_length[j],
                              problem.params, stations=stations,
-                             blocked=problem.bone_blocked(j))
+                             blocked=problem.bone_blocked(j), shortest=problem.shortest(j))
 
 
 def triplet_table(problem: MatchProblem, j: int, g: JointCandidates, p: JointCandidates,

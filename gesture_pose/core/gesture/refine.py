@@ -4,12 +4,16 @@ The discrete solution puts joints on candidate positions only. Each joint then t
 local random walk: trial moves around it (Gaussian, epsilon / 2) are kept when they lower
 the part of ``E_match`` touching the joint, keep the joint on the same side of every nearby
 contour and create no new inconsistency (the consistency term of its bones may not grow).
+Limb ends (a joint with its few descendants: an elbow with the wrist and the hand) also
+walk as a whole, so a limb drawn shorter or longer than where the search left it can slide
+along its outline without first stretching one bone. The step is halved each time a
+sweep lowers the energy by less than a small amount, down to epsilon / 8.
 Joints with reduced degrees of freedom, the pelvis and the shoulders, whose joints are tied
 by rigid offsets, are snapped to the nearest 2D rigid transform of their bind-pose
 neighbourhood (one ICP step, a 2D Kabsch fit) unless that raises their energy by more than
 a small slack (a 2D rigid motion cannot follow the foreshortening of a turned torso). This
-repeats until no joint moves. The walk
-uses a fixed seed, so a given input always gives the same result.
+repeats until the walk converges at its smallest step. The walk uses a fixed seed, so a
+given input always gives the same result.
 """
 
 from __future__ import annotations
@@ -38,6 +42,11 @@ class RefineParams:
         iterations: Maximum sweeps over the joints.
         trials: Trial moves per joint and sweep.
         step: Standard deviation of a trial move, in epsilons.
+        min_step: The walk's step is halved after a sweep that lowers the energy by less
+            than ``converged``, down to this (epsilons); the walk ends after such a sweep at
+            this step.
+        converged: Energy decrease of a sweep below which the walk has converged at its
+            step.
         seed: Random seed.
         snap_rigid: Snap the rigid neighbourhoods (pelvis, shoulders).
         group_trials: Trial moves of a rigid neighbourhood per sweep.
@@ -45,16 +54,23 @@ class RefineParams:
         snap_slack: A snap is kept unless it raises the group's energy by more than this
             (infinite: always, as in the paper). A group's rigid joints do not walk on
             their own: the group walks as a whole.
+        chain_trials: Trial moves per sweep of each limb end moved as a whole (a joint
+            with all its descendants, see :func:`limb_ends`); 0 disables them.
+        chain_size: Most joints of such a limb end.
     """
 
-    iterations: int = 8
-    trials: int = 12
+    iterations: int = 12
+    trials: int = 24
     step: float = 0.5
+    min_step: float = 0.125
+    converged: float = 0.05
     seed: int = 0
     snap_rigid: bool = True
     group_trials: int = 6
     group_turn: float = 3.0
     snap_slack: float = float("inf")
+    chain_trials: int = 8
+    chain_size: int = 3
 
 
 def _factor_energy(problem: MatchProblem, conf: JointCandidates, j: int,
@@ -75,7 +91,8 @@ def _factor_energy(problem: MatchProblem, conf: JointCandidates, j: int,
                               problem.link_length[child])
         prior = direction_cost(pa, pb, problem.link_offset[child], prm)
         return prior + pair_cost(d, pa, ra, ga, sa, pb, rb, gb, sb, problem.link_length[child],
-                                 prm, blocked=problem.bone_blocked(child))
+                                 prm, blocked=problem.bone_blocked(child),
+                                 shortest=problem.shortest(child))
 
     c1 = conf.take(np.arange(len(conf)))
     P, R, G, S = c1.positions, c1.radii, c1.group, c1.side
@@ -107,6 +124,85 @@ def _factor_energy(problem: MatchProblem, conf: JointCandidates, j: int,
             if problem.has_triplet(gc):
                 total = total + trip(gc, trial, P[c:c + 1], P[gc:gc + 1], g, G[c:c + 1],
                                      G[gc:gc + 1])[:, 0, 0]
+    return total
+
+
+def limb_ends(problem: MatchProblem, size: int) -> list[np.ndarray]:
+    """Free joints with their descendants, when those are free and at most ``size`` joints.
+
+    On a humanoid: an elbow with the wrist and the hand's tail, a wrist with the hand's
+    tail, a knee with the ankle and the foot's tail, the neck with the head. Each list
+    starts with its top joint, parents before children.
+    """
+    s = problem.solving
+    rigid = problem.rigid
+    out = []
+    for j in np.flatnonzero(~rigid & (s.joint_parent >= 0)):
+        sub = [int(j)]
+        k = 0
+        while k < len(sub) and len(sub) <= size:
+            sub += [int(c) for c in np.flatnonzero(s.joint_parent == sub[k])]
+            k += 1
+        if 2 <= len(sub) <= size and not rigid[sub].any():
+            out.append(np.array(sub))
+    return out
+
+
+def _chain_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
+                  chain: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """Energy of the factors that change when ``chain`` is translated by each shift, ``(T,)``.
+
+    ``chain`` is a joint with all its descendants (:func:`limb_ends`): their unaries, the
+    bones into them (their conformity and consistency move with them; lengths and
+    directions inside the chain do not) and the triplets that include the joint's parent.
+    Triplets inside the chain are translation invariant and left out.
+
+    Args:
+        problem: The matching problem.
+        conf: The configuration's labels (radii, groups, sides).
+        pos: Current joint positions, pixels, ``(J, 2)``.
+        chain: Joint indices, top joint first, ``(k,)``.
+        shift: Translations, pixels, ``(T, 2)``.
+    """
+    s, d, prm = problem.solving, problem.drawing, problem.params
+    par = s.joint_parent
+    t = len(shift)
+    total = np.zeros(t)
+    moved = {int(k): pos[k][None] + shift for k in chain}
+
+    def at(k: int) -> np.ndarray:
+        return moved[k] if k in moved else pos[k][None]
+
+    for k in chain:
+        r = np.full(t, conf.radii[k])
+        aligned = unary_cost(d, moved[int(k)], r, bool(problem.terminal[k]), prm)[1]
+        total += unary_from_aligned(aligned, bool(problem.terminal[k]), prm,
+                                    problem.bone_blocked(k))
+        p = par[k]
+        pa, pb = at(p), moved[int(k)]
+        if s.joint_link_bone[k] < 0:
+            table = rigid_cost(d, pa, pb, problem.link_offset[k], prm, problem.link_length[k])
+        else:
+            table = direction_cost(pa, pb, problem.link_offset[k], prm) + pair_cost(
+                d, pa, conf.radii[[p]], conf.group[[p]], conf.side[[p]], pb,
+                conf.radii[[k]], conf.group[[k]], conf.side[[k]], problem.link_length[k], prm,
+                blocked=problem.bone_blocked(k), shortest=problem.shortest(k))
+        total += np.diagonal(table) if len(pa) == t else table[0]
+    top = int(chain[0])
+    for k in [top, *np.flatnonzero(par == top)]:
+        if not problem.has_triplet(k):
+            continue
+        a, b = par[par[k]], par[k]
+        pa, pb, pc = at(a), at(b), at(k)
+        ga, gb, gc = conf.group[[a]], conf.group[[b]], conf.group[[k]]
+        shared = (ga == gb) & (gb == gc) & (gc >= 0)
+        d1, d2 = pb - pa, pc - pb
+        n1 = np.linalg.norm(d1, axis=1)
+        n2 = np.linalg.norm(d2, axis=1)
+        cos = np.einsum("td,td->t", np.broadcast_to(d1, (t, 2)), np.broadcast_to(d2, (t, 2)))
+        ang = np.arccos(np.clip(cos / np.maximum(n1 * n2, 1e-9), -1.0, 1.0))
+        sigma = prm.sigma_angle_shared if shared[0] else prm.sigma_angle
+        total += 1.0 - np.exp(-((ang - problem.rest_angle[k]) ** 2) / (2.0 * sigma**2))
     return total
 
 
@@ -172,7 +268,8 @@ def kabsch_2d(template: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 
 def _walk_group(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
-                grp: np.ndarray, rng: np.random.Generator, params: RefineParams) -> np.ndarray:
+                grp: np.ndarray, rng: np.random.Generator, params: RefineParams,
+                step: float | None = None) -> np.ndarray:
     """One random-walk step of a rigid neighbourhood moved as a whole.
 
     Trials turn the group about its centroid (``group_turn`` degrees, Gaussian) and move
@@ -185,7 +282,9 @@ def _walk_group(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
     eps = problem.drawing.epsilon
     n = params.group_trials
     ang = np.radians(rng.normal(0.0, params.group_turn, n))
-    shift = rng.normal(0.0, params.step * eps, (n, 2))
+    step = params.step if step is None else step
+    ang = ang * step / params.step
+    shift = rng.normal(0.0, step * eps, (n, 2))
     centre = pos[grp].mean(axis=0)
     rel = pos[grp] - centre
     cos, sin = np.cos(ang)[:, None], np.sin(ang)[:, None]
@@ -225,19 +324,21 @@ def refine(problem: MatchProblem, conf: JointCandidates, template: np.ndarray,
     moves, sweeps = 0, 0
     groups = rigid_groups(problem) if params.snap_rigid else []
     roots = {int(g[0]): g for g in groups}
+    chains = limb_ends(problem, params.chain_size) if params.chain_trials else []
+    step = params.step
     for sweep in range(1, params.iterations + 1):
         sweeps = sweep
-        moved = 0
+        moved, gain = 0, 0.0
         for j in range(len(pos)):
             if params.snap_rigid and problem.rigid[j]:
                 continue  # moves with its rigid neighbourhood
             if j in roots:
-                new = _walk_group(problem, conf, pos, roots[j], rng, params)
+                new = _walk_group(problem, conf, pos, roots[j], rng, params, step)
                 moved += int(new is not pos)
                 pos = new
                 continue
             cur = _with(conf, pos)
-            trial = pos[j] + rng.normal(0.0, params.step * eps, (params.trials, 2))
+            trial = pos[j] + rng.normal(0.0, step * eps, (params.trials, 2))
             trial = np.concatenate([pos[j:j + 1], trial])
             ok = _same_side(problem, pos[j], trial, 2.0 * conf.radii[j] + eps)
             energy = _factor_energy(problem, cur, j, trial)
@@ -247,6 +348,19 @@ def refine(problem: MatchProblem, conf: JointCandidates, template: np.ndarray,
                 pos = pos.copy()
                 pos[j] = trial[k]
                 moved += 1
+                gain += energy[0] - energy[k]
+        for chain in chains:
+            shift = np.concatenate([np.zeros((1, 2)),
+                                    rng.normal(0.0, step * eps, (params.chain_trials, 2))])
+            top = int(chain[0])
+            ok = _same_side(problem, pos[top], pos[top] + shift, 2.0 * conf.radii[top] + eps)
+            energy = np.where(ok, _chain_energy(problem, conf, pos, chain, shift), np.inf)
+            k = int(np.argmin(energy))
+            if k > 0 and energy[k] < energy[0] - 1e-6:
+                pos = pos.copy()
+                pos[chain] += shift[k]
+                moved += 1
+                gain += energy[0] - energy[k]
         for grp in groups:
             trial_pos = pos.copy()
             trial_pos[grp] = kabsch_2d(template[grp], pos[grp])
@@ -258,8 +372,10 @@ def refine(problem: MatchProblem, conf: JointCandidates, template: np.ndarray,
                     + params.snap_slack):
                 pos = trial_pos
         moves += moved
-        if moved == 0:
-            break
+        if moved == 0 or gain < params.converged:
+            if step <= params.min_step:
+                break
+            step = max(0.5 * step, params.min_step)
     out = JointCandidates(pos, conf.radii, conf.side, conf.origin, conf.group, conf.unary,
                           conf.aligned)
     after = joint_energy(problem, out)[0]

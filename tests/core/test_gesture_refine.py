@@ -1,0 +1,84 @@
+"""2D refinement of the embedding (Gesture3D Section 6): limb ends moved as a whole."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gesture_pose.core.gesture.candidates import JointCandidates
+from gesture_pose.core.gesture.mrf import joint_energy, make_problem
+from gesture_pose.core.gesture.preprocess import preprocess
+from gesture_pose.core.gesture.refine import RefineParams, _chain_energy, limb_ends, refine
+from gesture_pose.core.gesture.solving import solving_skeleton
+from gesture_pose.core.stroke import Stroke
+
+from .fixtures import chain_skeleton, front_camera
+from .test_gesture_fixtures import bent_arm_outline
+
+R = 0.1125  # limb radius, metres (30 px in the orthographic front camera)
+
+
+def _arm():
+    """The bent two-bone arm outline, its problem and the true joints as a configuration."""
+    cam = front_camera(ortho=True)
+    s, e, w = np.array([-0.8, 0, 0.8]), np.array([0.1, 0, 0.8]), np.array([0.7, 0, 0.8])
+    skel = chain_skeleton(np.stack([s, e, w]))
+    outline = bent_arm_outline(s[[0, 2]], e[[0, 2]], 0.6, R)
+    pixels = cam.project(np.stack([outline[:, 0], np.zeros(len(outline)), outline[:, 1]], 1))
+    solving = solving_skeleton(skel)
+    truth = cam.project(np.stack([s, e, e + [0, 0, 0.6]]))
+    problem = make_problem(preprocess([Stroke(pixels)]), solving,
+                           cam.pixels_per_unit(float(cam.depth(e[None])[0])),
+                           cam.project(solving.rest_joints))
+    n = solving.n_joints
+    conf = JointCandidates(truth.copy(), np.full(n, 30.0), np.zeros(n, int), -np.ones(n, int),
+                           -np.ones(n, int), np.zeros(n), -np.ones((n, 48), int))
+    return problem, conf
+
+
+def test_limb_ends_are_free_joints_with_their_descendants():
+    problem, _ = _arm()
+    ends = limb_ends(problem, 3)
+    names = problem.solving.joint_bones
+    # The elbow carries the wrist; the wrist alone and the root are not limb ends.
+    assert [[names[j] for j in e] for e in ends] == [["b0 tail", "b1 tail"]]
+    assert limb_ends(problem, 1) == []
+
+
+def test_chain_energy_is_the_change_of_the_whole_energy():
+    """Translating a limb end changes exactly the factors the chain energy sums."""
+    problem, conf = _arm()
+    chain = limb_ends(problem, 3)[0]
+    shift = np.array([[0.0, 0.0], [6.0, -4.0], [-15.0, 2.0], [3.0, 20.0]])
+    chained = _chain_energy(problem, conf, conf.positions, chain, shift)
+    whole = []
+    for d in shift:
+        pos = conf.positions.copy()
+        pos[chain] += d
+        moved = JointCandidates(pos, conf.radii, conf.side, conf.origin, conf.group,
+                                conf.unary, conf.aligned)
+        whole.append(joint_energy(problem, moved)[0])
+    np.testing.assert_allclose(chained - chained[0], np.array(whole) - whole[0], atol=1e-9)
+    assert np.ptp(chained) > 0.1  # the shifts do change the energy
+
+
+def test_refinement_of_a_displaced_limb_end_regains_the_energy():
+    """Elbow and wrist pushed off the drawn arm together: the walk (single joints and the
+    limb end as a whole, step halved as it converges) gets back at least to the energy
+    of the true joints, deterministically."""
+    problem, conf = _arm()
+    eps = problem.drawing.epsilon
+    chain = limb_ends(problem, 3)[0]
+    params = RefineParams(chain_trials=8, min_step=0.125, converged=0.05, trials=24,
+                          iterations=12)
+    truth = joint_energy(problem, conf)[0]
+    for dy in (eps, -eps):
+        start = conf.positions.copy()
+        start[chain] += [0.0, dy]
+        moved = JointCandidates(start, conf.radii, conf.side, conf.origin, conf.group,
+                                conf.unary, conf.aligned)
+        out, info = refine(problem, moved, problem.reference, params)
+        assert info["energy_before"] > truth + 0.1
+        assert info["energy_after"] <= truth
+        assert np.all(np.linalg.norm(out.positions - conf.positions, axis=1) < eps)
+        again, _ = refine(problem, moved, problem.reference, params)
+        np.testing.assert_array_equal(out.positions, again.positions)
