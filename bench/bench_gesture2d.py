@@ -15,12 +15,16 @@ quadruped; with ``../shared/eval-assets`` present, CMU poses on the Quaternius A
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from bench.eval_assets import ADVENTURER, head_skeleton, load_adventurer, pose_through
+if __name__ == "__main__":  # run as a script (the docs pictures): the repository root
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.eval_assets import ADVENTURER, head_skeleton, load_adventurer, pose_through  # noqa: E402
 
 HEADERS = ["character", "pose", "view", "drawing", "joints", "mean err %", "p90 err %",
            "L/R swaps", "coverage %", "s"]
@@ -247,8 +251,5 @@ def render_doc_images(out_dir: Path, pose: str = "kick_right_leg", size: int = 4
 
 
 if __name__ == "__main__":
-    import sys
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     for path in render_doc_images(Path(__file__).resolve().parents[1] / "docs" / "img"):
         print(path)

@@ -240,10 +240,11 @@ class MatchProblem:
         return self.blocked[b]
 
     def shortest(self, j: int) -> float | None:
-        """Shortest drawn length of joint ``j``'s bone that costs no length term, pixels.
+        """The length of joint ``j``'s bone seen in the view at the current pose, pixels.
 
-        With ``view_lengths``, the bone's length in the view at the current pose when it is
-        foreshortened there (None otherwise: Eq. 2 as in the paper).
+        With ``view_lengths`` the length term accepts any drawn length between it and the
+        bone's full length (:func:`~.costs.length_cost`); None without (Eq. 2 as in the
+        paper).
         """
         if not self.params.view_lengths:
             return None
