@@ -22,18 +22,16 @@ from .figure import CharacterFigure
 N_ROOT_GENES = 6
 
 
-def _skew_fast(w: np.ndarray) -> np.ndarray:
-    """Cross-product matrices, ``(..., 3) -> (..., 3, 3)`` (assembled in place)."""
-    k = np.zeros(w.shape[:-1] + (3, 3))
-    k[..., 0, 1], k[..., 0, 2] = -w[..., 2], w[..., 1]
-    k[..., 1, 0], k[..., 1, 2] = w[..., 2], -w[..., 0]
-    k[..., 2, 0], k[..., 2, 1] = -w[..., 1], w[..., 0]
-    return k
-
-
 def _coefficients(phi: np.ndarray):
-    """``theta^2``, ``sin(t)/t``, ``(1 - cos t)/t^2``, ``(t - sin t)/t^3`` (series near 0)."""
-    t2 = np.sum(phi * phi, axis=-1)[..., None, None]
+    """``theta^2``, ``sin(t)/t``, ``(1 - cos t)/t^2``, ``(t - sin t)/t^3`` (series near 0).
+
+    Args:
+        phi: Rotation vectors, shape ``(..., 3)``.
+
+    Returns:
+        Four arrays of shape ``(...)``.
+    """
+    t2 = np.sum(phi * phi, axis=-1)
     t = np.sqrt(t2)
     small = t < 1e-4
     safe = np.where(small, 1.0, t)
@@ -43,12 +41,48 @@ def _coefficients(phi: np.ndarray):
     return t2, s, c, d
 
 
+def _identity_skew_outer(phi: np.ndarray, alpha: np.ndarray, beta: np.ndarray,
+                         gamma: np.ndarray) -> np.ndarray:
+    """``alpha I + beta K + gamma phi phi^T`` (``K`` the cross-product matrix of ``phi``).
+
+    Assembled entry by entry on ``(...)`` arrays instead of broadcasting ``(..., 3, 3)``
+    products (4-5 times faster over a population), with the same floating-point
+    operations per entry, so the result is bit-identical to the matrix expression.
+
+    Args:
+        phi: Rotation vectors, shape ``(..., 3)``.
+        alpha: Identity coefficients, shape ``(...)``.
+        beta: Cross-product coefficients, shape ``(...)``.
+        gamma: Outer-product coefficients, shape ``(...)``.
+
+    Returns:
+        Matrices, shape ``(..., 3, 3)``.
+    """
+    x, y, z = phi[..., 0], phi[..., 1], phi[..., 2]
+    bx, by, bz = beta * x, beta * y, beta * z
+    gxy, gxz, gyz = gamma * (x * y), gamma * (x * z), gamma * (y * z)
+    out = np.empty(phi.shape[:-1] + (3, 3))
+    out[..., 0, 0] = alpha + gamma * (x * x)
+    out[..., 1, 1] = alpha + gamma * (y * y)
+    out[..., 2, 2] = alpha + gamma * (z * z)
+    out[..., 0, 1], out[..., 1, 0] = -bz + gxy, bz + gxy
+    out[..., 0, 2], out[..., 2, 0] = by + gxz, -by + gxz
+    out[..., 1, 2], out[..., 2, 1] = -bx + gyz, bx + gyz
+    return out
+
+
 def fast_exp(phi: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula ``I + s K + c K^2`` with ``K^2 = phi phi^T - theta^2 I``."""
+    """Rodrigues' formula ``I + s K + c K^2`` with ``K^2 = phi phi^T - theta^2 I``.
+
+    Args:
+        phi: Rotation vectors, shape ``(..., 3)`` (radians).
+
+    Returns:
+        Rotation matrices, shape ``(..., 3, 3)``.
+    """
     phi = np.asarray(phi, float)
     t2, s, c, _ = _coefficients(phi)
-    outer = phi[..., :, None] * phi[..., None, :]
-    return (1.0 - c * t2) * np.eye(3) + s * _skew_fast(phi) + c * outer
+    return _identity_skew_outer(phi, 1.0 - c * t2, s, c)
 
 
 def right_jacobian(phi: np.ndarray) -> np.ndarray:
@@ -58,8 +92,7 @@ def right_jacobian(phi: np.ndarray) -> np.ndarray:
     """
     phi = np.asarray(phi, float)
     t2, _, c, d = _coefficients(phi)
-    outer = phi[..., :, None] * phi[..., None, :]
-    return (1.0 - d * t2) * np.eye(3) - c * _skew_fast(phi) + d * outer
+    return _identity_skew_outer(phi, 1.0 - d * t2, -c, d)
 
 
 @dataclass(frozen=True)
@@ -89,6 +122,9 @@ class PoseModel:
     _root_carry: np.ndarray = field(init=False, repr=False)
     _root_hcarry: np.ndarray = field(init=False, repr=False)
     _level_data: tuple = field(init=False, repr=False)
+    _moved: np.ndarray = field(init=False, repr=False)
+    _base_local: np.ndarray = field(init=False, repr=False)
+    _base_offset: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         """Flatten the groups into per-(bone, gene) entries and cache descendant masks."""
@@ -133,10 +169,19 @@ class PoseModel:
             par = sk.parents[level]
             root = par < 0
             ri, ci, cp = level[root], level[~root], par[~root]
-            levels.append((ri, ci, cp, np.swapaxes(sk.rest_frames[cp], 1, 2),
-                           sk.inherit_rotation[ci][:, None, None],
+            # Empty root sets and all-inheriting levels skip their numpy calls (a gene
+            # vector's forward pass is dominated by their count, not their size).
+            inherit = np.asarray(sk.inherit_rotation[ci], bool)
+            levels.append((ri if ri.size else None, ci, cp,
+                           np.swapaxes(sk.rest_frames[cp], 1, 2),
+                           None if inherit.all() else inherit[:, None, None],
                            sk.rest_heads[ci] - sk.rest_heads[cp]))
         object.__setattr__(self, "_level_data", tuple(levels))
+        moved = np.unique(np.concatenate([e_bone, [fig.root_bone]]))
+        object.__setattr__(self, "_moved", moved)
+        object.__setattr__(self, "_base_local", sk.rest_frames @ self.base.rotations)
+        object.__setattr__(self, "_base_offset", np.einsum(
+            "nij,nj->ni", sk.rest_frames, self.base.translations))
         state = sk.forward(self.base)
         r = fig.root_bone
         object.__setattr__(self, "_root_carry", sk.parent_carry(r, state))
@@ -210,19 +255,26 @@ class PoseModel:
         P, n = x.shape[0], sk.n_bones
         Q, phi = self.local_rotations(x)
         rest = sk.rest_frames
-        local = rest @ Q
-        t = np.broadcast_to(self.base.translations, (P, n, 3)).copy()
+        # Only the group bones and the root turn and only the root moves: the other
+        # bones' local frames and offsets are the base pose's (cached).
+        moved = self._moved
+        local = np.broadcast_to(self._base_local, (P, n, 3, 3)).copy()
+        local[:, moved] = rest[moved] @ Q[:, moved]
         r = self.figure.root_bone
-        t[:, r] += x[:, :3] @ self._root_hcarry @ rest[r]
-        offset = np.einsum("nij,pnj->pni", rest, t)
+        offset = np.broadcast_to(self._base_offset, (P, n, 3)).copy()
+        t_root = self.base.translations[r] + x[:, :3] @ self._root_hcarry @ rest[r]
+        offset[:, r] = np.einsum("ij,pj->pi", rest[r], t_root)
         frames = np.empty((P, n, 3, 3))
         heads = np.empty((P, n, 3))
         for ri, ci, cp, rest_t, inherit, rel0 in self._level_data:
-            frames[:, ri] = local[:, ri]
-            heads[:, ri] = sk.rest_heads[ri] + offset[:, ri]
+            if ri is not None:
+                frames[:, ri] = local[:, ri]
+                heads[:, ri] = sk.rest_heads[ri] + offset[:, ri]
             if ci.size:
                 carry = frames[:, cp] @ rest_t
-                frames[:, ci] = np.where(inherit, carry @ local[:, ci], local[:, ci])
+                turned = carry @ local[:, ci]
+                frames[:, ci] = turned if inherit is None else np.where(
+                    inherit, turned, local[:, ci])
                 rel = rel0 + offset[:, ci]
                 heads[:, ci] = heads[:, cp] + np.einsum("pnij,pnj->pni", carry, rel)
         tails = heads + frames[..., 1] * sk.lengths[:, None]
