@@ -152,7 +152,10 @@ class DistanceGrid:
 
     def __post_init__(self) -> None:
         """Build the k-d tree."""
-        tree = cKDTree(self.samples) if len(self.samples) else None
+        # Sliding-midpoint splits without node compaction build 2-3 times faster than
+        # the median ones and answer the (exact) nearest-sample queries as fast.
+        tree = (cKDTree(self.samples, balanced_tree=False, compact_nodes=False)
+                if len(self.samples) else None)
         object.__setattr__(self, "_tree", tree)
         object.__setattr__(self, "_near", {})
 
@@ -161,10 +164,15 @@ class DistanceGrid:
         if reach not in self._near:
             cells = np.floor(self.samples / VOXEL).astype(np.int64)
             _, first = np.unique(_voxel_keys(cells), return_index=True)
-            r = np.arange(-reach, reach + 1)
-            shifts = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
-            near = (cells[first][:, None] + shifts[None]).reshape(-1, 3)
-            self._near[reach] = np.unique(_voxel_keys(near))
+            near = cells[first]
+            # The cube of shifts is separable: dilate along one axis at a time.
+            for axis in range(3):
+                shifts = np.zeros((2 * reach + 1, 3), np.int64)
+                shifts[:, axis] = np.arange(-reach, reach + 1)
+                near = (near[:, None] + shifts[None]).reshape(-1, 3)
+                _, first = np.unique(_voxel_keys(near), return_index=True)
+                near = near[first]
+            self._near[reach] = _voxel_keys(near)
         return self._near[reach]
 
     def sample(self, points: np.ndarray, limit: float | None = None
