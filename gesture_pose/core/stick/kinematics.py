@@ -22,22 +22,26 @@ from .figure import CharacterFigure
 N_ROOT_GENES = 6
 
 
-def _coefficients(phi: np.ndarray):
+def _coefficients(phi: np.ndarray, third: bool = True):
     """``theta^2``, ``sin(t)/t``, ``(1 - cos t)/t^2``, ``(t - sin t)/t^3`` (series near 0).
 
     Args:
         phi: Rotation vectors, shape ``(..., 3)``.
+        third: Also compute ``(t - sin t)/t^3`` (None otherwise).
 
     Returns:
-        Four arrays of shape ``(...)``.
+        Four arrays of shape ``(...)`` (the last None unless ``third``).
     """
     t2 = np.sum(phi * phi, axis=-1)
     t = np.sqrt(t2)
     small = t < 1e-4
     safe = np.where(small, 1.0, t)
-    s = np.where(small, 1.0 - t2 / 6.0, np.sin(safe) / safe)
+    sin = np.sin(safe)
+    s = np.where(small, 1.0 - t2 / 6.0, sin / safe)
     c = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
-    d = np.where(small, 1.0 / 6.0 - t2 / 120.0, (safe - np.sin(safe)) / safe**3)
+    if not third:
+        return t2, s, c, None
+    d = np.where(small, 1.0 / 6.0 - t2 / 120.0, (safe - sin) / safe**3)
     return t2, s, c, d
 
 
@@ -81,7 +85,7 @@ def fast_exp(phi: np.ndarray) -> np.ndarray:
         Rotation matrices, shape ``(..., 3, 3)``.
     """
     phi = np.asarray(phi, float)
-    t2, s, c, _ = _coefficients(phi)
+    t2, s, c, _ = _coefficients(phi, third=False)
     return _identity_skew_outer(phi, 1.0 - c * t2, s, c)
 
 
@@ -229,9 +233,11 @@ class PoseModel:
         Q = np.broadcast_to(self.base.rotations, (P,) + self.base.rotations.shape).copy()
         g = np.where(self._e_valid, x[:, self._e_genes], 0.0)
         phi = np.einsum("eij,pej->pei", self._e_basis, g)
-        Q[:, self._e_bone] = Q[:, self._e_bone] @ fast_exp(phi)
+        # One exponential call for the group bones and the root's turn (the last row).
+        E = fast_exp(np.concatenate([phi, x[:, None, 3:6]], axis=1))
+        Q[:, self._e_bone] = Q[:, self._e_bone] @ E[:, :-1]
         C = self._root_carry
-        G = fast_exp(x[:, 3:6])
+        G = E[:, -1]
         r = self.figure.root_bone
         Q[:, r] = C.T @ G @ C @ self.base.rotations[r]
         return Q, phi
@@ -294,12 +300,13 @@ class PoseModel:
         n, G = self.skeleton.n_bones, x.size
         # World axis of every (bone, gene) entry, in group order.
         e = self._e_bone
-        w = frames[e] @ right_jacobian(phi) @ self._e_basis  # (E, 3, 3): columns = genes
+        jr = right_jacobian(np.concatenate([phi, x[None, 3:6]]))  # the root's last
+        w = frames[e] @ jr[:-1] @ self._e_basis  # (E, 3, 3): columns = genes
         axes = np.swapaxes(w, 1, 2)[self._e_valid]
         pivots = heads[self._gene_bone]
         r = self.figure.root_bone
         # Root: dG = [J_l e_k]_x G with J_l = J_r^T, so the axes are the rows of J_r.
-        all_axes = np.concatenate([right_jacobian(x[3:6]), axes])
+        all_axes = np.concatenate([jr[-1], axes])
         all_piv = np.concatenate([np.tile(heads[r], (3, 1)), pivots])
         all_bone = np.concatenate([[r, r, r], self._gene_bone])
         all_gene = np.concatenate([[3, 4, 5], self._gene_index])
