@@ -15,6 +15,7 @@ with respect to the segment end points (Danskin: the closest-point parameters st
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -206,9 +207,12 @@ def body_collision(caps: Capsules, heads: np.ndarray, tails: np.ndarray,
     return (energy,) + caps.scatter(g0, g1, heads.shape[-2])
 
 
+@functools.lru_cache(maxsize=8)
 def axis_samples(n_samples: int) -> np.ndarray:
-    """Sample parameters along a capsule axis, ``(m,)`` in ``[0, 1]``."""
-    return np.linspace(0.0, 1.0, n_samples)
+    """Sample parameters along a capsule axis, ``(m,)`` in ``[0, 1]`` (cached, read-only)."""
+    u = np.linspace(0.0, 1.0, n_samples)
+    u.flags.writeable = False
+    return u
 
 
 def bone_masses(skeleton: Skeleton, caps: Capsules, density: float = 1000.0) -> np.ndarray:

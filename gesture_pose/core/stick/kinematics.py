@@ -129,6 +129,7 @@ class PoseModel:
     _moved: np.ndarray = field(init=False, repr=False)
     _base_local: np.ndarray = field(init=False, repr=False)
     _base_offset: np.ndarray = field(init=False, repr=False)
+    _tables: dict = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         """Flatten the groups into per-(bone, gene) entries and cache descendant masks."""
@@ -183,6 +184,7 @@ class PoseModel:
         object.__setattr__(self, "_level_data", tuple(levels))
         moved = np.unique(np.concatenate([e_bone, [fig.root_bone]]))
         object.__setattr__(self, "_moved", moved)
+        object.__setattr__(self, "_tables", {})
         object.__setattr__(self, "_base_local", sk.rest_frames @ self.base.rotations)
         object.__setattr__(self, "_base_offset", np.einsum(
             "nij,nj->ni", sk.rest_frames, self.base.translations))
@@ -254,8 +256,21 @@ class PoseModel:
         heads, tails, frames, _ = self._forward(genes)
         return heads, tails, frames
 
-    def _forward(self, genes: np.ndarray) -> tuple[np.ndarray, ...]:
-        """:meth:`forward` plus the group bones' rotation vectors ``(P, entries, 3)``."""
+    def forward_rotations(self, genes: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`forward` plus the local rotations ``(P, n, 3, 3)`` it computed.
+
+        Returns:
+            ``(heads, tails, frames, Q)`` (:meth:`forward`, :meth:`local_rotations`).
+        """
+        heads, tails, frames, _, Q = self._forward(genes, rotations=True)
+        return heads, tails, frames, Q
+
+    def _forward(self, genes: np.ndarray, rotations: bool = False) -> tuple[np.ndarray, ...]:
+        """:meth:`forward` plus the group bones' rotation vectors ``(P, entries, 3)``.
+
+        With ``rotations`` the local rotations ``(P, n, 3, 3)`` follow as a fifth item.
+        """
         sk = self.skeleton
         x = np.atleast_2d(genes)
         P, n = x.shape[0], sk.n_bones
@@ -284,6 +299,8 @@ class PoseModel:
                 rel = rel0 + offset[:, ci]
                 heads[:, ci] = heads[:, cp] + np.einsum("pnij,pnj->pni", carry, rel)
         tails = heads + frames[..., 1] * sk.lengths[:, None]
+        if rotations:
+            return heads, tails, frames, phi, Q
         return heads, tails, frames, phi
 
     def jacobian(self, genes: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -303,27 +320,39 @@ class PoseModel:
         jr = right_jacobian(np.concatenate([phi, x[None, 3:6]]))  # the root's last
         w = frames[e] @ jr[:-1] @ self._e_basis  # (E, 3, 3): columns = genes
         axes = np.swapaxes(w, 1, 2)[self._e_valid]
-        pivots = heads[self._gene_bone]
-        r = self.figure.root_bone
         # Root: dG = [J_l e_k]_x G with J_l = J_r^T, so the axes are the rows of J_r.
         all_axes = np.concatenate([jr[-1], axes])
-        all_piv = np.concatenate([np.tile(heads[r], (3, 1)), pivots])
-        all_bone = np.concatenate([[r, r, r], self._gene_bone])
-        all_gene = np.concatenate([[3, 4, 5], self._gene_index])
+        all_bone, mask, onehot = self._jacobian_tables(G)
+        all_piv = heads[all_bone]
         pts = np.concatenate([heads, tails])  # (2n, 3)
-        mask = np.tile(self._desc[all_bone], (1, 2))  # (E, 2n)
         # Moving ``p`` by a turn about ``w`` through ``c``: w x (p - c), all entries at once.
         a, d = all_axes[:, None, :], pts[None] - all_piv[:, None, :]
         mov = np.stack([a[..., 1] * d[..., 2] - a[..., 2] * d[..., 1],
                         a[..., 2] * d[..., 0] - a[..., 0] * d[..., 2],
                         a[..., 0] * d[..., 1] - a[..., 1] * d[..., 0]], -1)
         mov *= mask[..., None]
-        onehot = np.zeros((G, len(all_gene)))
-        onehot[all_gene, np.arange(len(all_gene))] = 1.0
-        J = (onehot @ mov.reshape(len(all_gene), -1)).reshape(G, 2 * n, 3)
+        J = (onehot @ mov.reshape(len(all_bone), -1)).reshape(G, 2 * n, 3)
         J[:3] = np.eye(3)[:, None, :]
         J = np.transpose(J, (1, 2, 0))
         return heads, tails, J[:n], J[n:]
+
+    def _jacobian_tables(self, n_genes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Constants of :meth:`jacobian` (computed once per gene count).
+
+        Returns:
+            ``(bone (E,), moved (E, 2n) bool, onehot (G, E))`` per rotation-gene entry
+            (the root's three first): the bone it turns, the heads and tails it moves and
+            the gene it belongs to.
+        """
+        if n_genes not in self._tables:
+            r = self.figure.root_bone
+            bone = np.concatenate([[r, r, r], self._gene_bone])
+            gene = np.concatenate([[3, 4, 5], self._gene_index])
+            mask = np.tile(self._desc[bone], (1, 2))
+            onehot = np.zeros((n_genes, len(gene)))
+            onehot[gene, np.arange(len(gene))] = 1.0
+            self._tables[n_genes] = (bone, mask, onehot)
+        return self._tables[n_genes]
 
     def to_pose(self, genes: np.ndarray) -> Pose:
         """The :class:`Pose` of one gene vector (shape ``(G,)``)."""

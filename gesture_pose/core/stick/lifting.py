@@ -144,8 +144,7 @@ def _lift(model: PoseModel, X: np.ndarray, bounds: np.ndarray, stick: StickFigur
             hinge_child[k] = kids[0]
     rays = camera.rays(stick.points[[j for _, _, j, _ in groups]])
     for tier in sorted(set(depth.values())):
-        heads, _, frames = model.forward(X)
-        Q, _ = model.local_rotations(X)
+        heads, _, frames, Q = model.forward_rotations(X)
         for k, (gi, start, _, length) in enumerate(groups):
             if depth[k] != tier:
                 continue
