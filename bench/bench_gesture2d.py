@@ -24,7 +24,7 @@ import numpy as np
 if __name__ == "__main__":  # run as a script (the docs pictures): the repository root
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.eval_assets import ADVENTURER, head_skeleton, load_adventurer, pose_through  # noqa: E402
+from bench.eval_assets import ADVENTURER, load_adventurer  # noqa: E402
 
 HEADERS = ["character", "pose", "view", "drawing", "joints", "mean err %", "p90 err %",
            "L/R swaps", "coverage %", "s"]
@@ -109,65 +109,45 @@ def sample_rows(quick: bool) -> list[list]:
     return rows
 
 
-def _segment_weights(full, ends: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Skin weights of the head-skeleton segments, ``(V, m)``.
-
-    A full bone counts for the segment starting at its nearest major ancestor (itself
-    included), or ending there when no segment starts there (hands, feet, head).
-    """
-    starts = {int(b): k for k, b in enumerate(ends[:, 0])}
-    stops = {int(b): k for k, b in enumerate(ends[:, 1])}
-    major = set(starts) | set(stops)
-    out = np.zeros((len(weights), len(ends)))
-    for b in range(full.n_bones):
-        anc = next((a for a in full.ancestors(b) if a in major), None)
-        k = starts.get(anc, stops.get(anc)) if anc is not None else None
-        if k is not None:
-            out[:, k] += weights[:, b]
-    return out
-
-
 def adventurer_rows(quick: bool) -> list[list]:
     """Rows for CMU poses on the Quaternius Adventurer (skipped when assets are absent).
 
-    glTF bones carry token lengths, so the fitted skeleton is the one through the heads of
-    the major bones (``eval_assets.head_skeleton``); its bind pose is the rest pose.
+    The character is read as the add-on reads it: its glTF bones have token lengths, so the
+    reader gives the joint skeleton (each bone from its head to its principal child's head,
+    ``core/joint_skeleton.py``); the bind pose is its rest pose. Seen from the front (it
+    faces +Y).
     """
     if not ADVENTURER.exists():
         return []
     import bpy
 
+    from gesture_pose.blender.operators.fit_drawing import bind_pose
     from gesture_pose.blender.read_armature import read_armature
     from gesture_pose.blender.read_mesh import read_skinned_meshes
     from gesture_pose.blender.read_view import camera_from_object
     from gesture_pose.core.gesture.embedding import fit_drawing, posed_joints
     from gesture_pose.core.gesture.trace import Perturbation, perturb, trace_contours
-    from gesture_pose.core.skeleton import Pose
     from gesture_pose.core.stroke import Stroke
     from sample_scenes import builders
 
     scene, arm, rest, meshes = load_adventurer()
-    full = rest.skeleton
-    skel, ends = head_skeleton(full, full.rest_heads)
-    cam = builders.add_camera(meshes[0] if meshes else arm, resolution=(800, 800),
-                              margin=1.4)
+    cam = builders.add_camera(meshes[0] if meshes else arm, direction=(0.0, 1.0, 0.0),
+                              resolution=(800, 800), margin=1.4)
     camera = camera_from_object(cam, scene)
     rows = []
     for k in ((1,) if quick else range(1, 41, 4)):
         scene.frame_set(k)
         bpy.context.view_layer.update()
         data = read_armature(arm)
-        md = read_skinned_meshes(arm, full)
-        truth_pose = pose_through(skel, ends, full.forward(data.pose).heads)
+        md = read_skinned_meshes(arm, data.skeleton)
         clean = trace_contours(md.deformed_vertices, md.triangles, camera)
         for drawing, traced in (("clean", clean),
                                 ("perturbed", perturb(clean, Perturbation(seed=1)))):
             t0 = time.perf_counter()
-            emb = fit_drawing([Stroke(p) for p in traced.pixels], skel,
-                              Pose.identity(skel.n_bones), md.rest_vertices, camera,
-                              _segment_weights(full, ends, md.weights))
+            emb = fit_drawing([Stroke(p) for p in traced.pixels], rest.skeleton,
+                              bind_pose(rest), md.rest_vertices, camera, md.weights)
             seconds = time.perf_counter() - t0
-            truth = camera.project(posed_joints(emb.solving, skel, truth_pose))
+            truth = camera.project(posed_joints(emb.solving, data.skeleton, data.pose))
             err = np.linalg.norm(emb.joints2d - truth, axis=1) / np.ptp(truth[:, 1]) * 100
             rows.append(["adventurer", f"cmu {k}", "front", drawing, emb.solving.n_joints,
                          float(err.mean()), float(np.percentile(err, 90)),
