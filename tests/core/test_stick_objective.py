@@ -186,6 +186,19 @@ def test_distance_grid_on_a_plane():
     assert np.allclose(g, [[0, 0, 1], [0, 0, 1]], atol=0.1)
 
 
+def test_distance_grid_samples_are_distinct_and_exact_far_from_the_origin():
+    # 40 km out the half-spacing cell indices no longer fit the packed key (2^20): the
+    # deduplication falls back to hashing and must still keep distinct, covering samples.
+    for offset in (0.0, 40000.0):
+        v, t = box([offset - 0.5, -0.5, -0.05], [offset + 0.5, 0.5, 0.0])
+        env = Environment(v, t, np.zeros(len(t), int), ("Floor",))
+        grid = distance_grid(env, [offset, 0.0, 0.0], 0.3, 0.05)
+        cells = np.floor(grid.samples / 0.025)
+        assert len(np.unique(cells, axis=0)) == len(grid.samples) > 100
+        d, _ = grid.sample(np.array([[offset + 0.1, 0.05, 0.07]]))
+        assert abs(d[0] - 0.07) < 0.025
+
+
 def test_residuals_square_to_the_energy_and_jacobian_matches_finite_differences():
     rng = np.random.default_rng(11)
     obj, truth = problem(rng)

@@ -229,6 +229,18 @@ def _clip_subdivide(tris: np.ndarray, lo: np.ndarray, hi: np.ndarray, max_edge: 
     return np.concatenate(out) if out else np.zeros((0, 3, 3))
 
 
+def _in_box(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Whether points ``(m, 3)`` lie in the box ``[lo, hi]``, ``(m,)`` bool.
+
+    Compared coordinate by coordinate: on the grid's few hundred thousand samples this is
+    three times faster than reducing an ``(m, 3)`` comparison along its short axis.
+    """
+    inside = (points[:, 0] >= lo[0]) & (points[:, 0] <= hi[0])
+    for k in (1, 2):
+        inside &= (points[:, k] >= lo[k]) & (points[:, k] <= hi[k])
+    return inside
+
+
 def surface_samples(env: Environment, spacing: float, lo: np.ndarray,
                     hi: np.ndarray, max_edge: float = 0.2) -> np.ndarray:
     """Points covering the triangles inside a box, at most ``spacing`` apart, ``(m, 3)``.
@@ -260,7 +272,7 @@ def surface_samples(env: Environment, spacing: float, lo: np.ndarray,
         w = np.stack([a[m], b[m]], 1) / k  # (L, 2)
         pts = (tris[sel, 0, None] + w[None, :, :1] * e1[sel, None] +
                w[None, :, 1:] * e2[sel, None]).reshape(-1, 3)
-        out.append(pts[np.all((pts >= lo - spacing) & (pts <= hi + spacing), 1)])
+        out.append(pts[_in_box(pts, lo - spacing, hi + spacing)])
     return np.concatenate(out)
 
 
@@ -281,9 +293,12 @@ def distance_grid(env: Environment, center: np.ndarray, half_size: float,
     lo = np.asarray(center, float) - half_size
     hi = np.asarray(center, float) + half_size
     samples = surface_samples(env, spacing, lo, hi)
-    samples = samples[np.all((samples >= lo) & (samples <= hi), 1)]
-    _, first = np.unique(row_hash(np.floor(samples / (0.5 * spacing)).astype(np.int64)),
-                         return_index=True)
+    samples = samples[_in_box(samples, lo, hi)]
+    cells = np.floor(samples / (0.5 * spacing))
+    # One integer per half-spacing cell: packed indices (exact) while they fit, else hashed.
+    fits = len(cells) == 0 or float(np.abs(cells).max()) < (1 << 20) - 1
+    key = _voxel_keys(cells) if fits else row_hash(cells.astype(np.int64))
+    _, first = np.unique(key, return_index=True)
     return DistanceGrid(samples[np.sort(first)], spacing, max_distance)
 
 
