@@ -269,3 +269,16 @@ def test_pose_stroke_on_the_token_rig(registered):
     px = builders.project_to_pixels(pts, cam)
     drawn = builders.project_to_pixels(stroke, cam)
     assert distance_to_polyline(px, drawn).max() < 6.0
+
+
+def test_locks_that_do_not_fall_on_the_joint_axes_are_reported(bpy_blank):
+    """A rotation lock on a re-aimed bone cannot be kept per axis: the reader says so."""
+    token, _ = token_humanoid()
+    token.pose.bones["forearm.L"].lock_rotation = (True, False, False)
+    bpy.context.view_layer.update()
+    data = read_armature(token)
+    assert len(data.warnings) == 1
+    assert "forearm.L" in data.warnings[0] and "ignored" in data.warnings[0]
+    assert not data.lock_rotation[data.skeleton.index("forearm.L")].any()
+    token.pose.bones["forearm.L"].lock_rotation = (False, False, False)
+    assert read_armature(token).warnings == ()

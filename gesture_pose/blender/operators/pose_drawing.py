@@ -48,6 +48,8 @@ class PoseDrawingReport:
         seconds: Wall time of the whole Pose, seconds.
         timings: Seconds per stage (``"fit"`` with reading the scene, ``"solve3d"``,
             ``"write"``).
+        warnings: Notes from reading the armature (e.g. rotation locks of an imported
+            rig's bones that do not fall on the axes it is solved in).
     """
 
     embedding: Embedding2D
@@ -55,6 +57,7 @@ class PoseDrawingReport:
     written: tuple[str, ...]
     seconds: float
     timings: dict
+    warnings: tuple[str, ...] = ()
 
 
 def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
@@ -106,7 +109,7 @@ def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
     timings["write"] = time.perf_counter() - t2
     tick(1.0)
     return PoseDrawingReport(embedding, result, tuple(written), time.perf_counter() - t0,
-                             timings)
+                             timings, data.warnings)
 
 
 def flip_limb_depth(arm_obj: bpy.types.Object, bone_name: str, camera: Camera, *,
@@ -175,7 +178,7 @@ class GESTUREPOSE_OT_pose_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
                                     show_fit=self.show_fit, progress=update)
         finally:
             end()
-        for warning in (*rep.embedding.warnings, *rep.result.warnings):
+        for warning in (*rep.warnings, *rep.embedding.warnings, *rep.result.warnings):
             self.report({"WARNING"}, warning)
         orders = len(rep.result.ordering)
         report_result(self, f"Posed {len(rep.written)} bones in {rep.seconds:.2f} s "

@@ -163,7 +163,7 @@ class GESTUREPOSE_OT_pose_stroke(GesturePoseOperatorMixin, bpy.types.Operator):
             for layer in {s.layer_name for s in job.strokes}:
                 idx = [s.index for s in job.strokes if s.layer_name == layer]
                 remove_strokes(sketch, layer, idx, frame)
-        for warning in (w for r in results for w in r.warnings):
+        for warning in (*job.armature.warnings, *(w for r in results for w in r.warnings)):
             self.report({"WARNING"}, warning)
         ms = (time.perf_counter() - t0) * 1e3
         mean = float(np.mean([r.mean_distance for r in results]))
