@@ -7,7 +7,8 @@ bones as head -> tail segments, so such a rig is replaced, for the solvers only,
 **joint skeleton**: each bone runs from its head to its principal child's head (the child
 the chain continues through), end bones along their skinned mesh.
 
-The joint skeleton keeps the heads, names, parents and flags of the real bones; only the
+The joint skeleton keeps the heads, names, parents and flags of the real bones (a bone is
+connected when it is its parent's principal child); only the
 tails and the rest frames change. Bone ``i``'s new rest frame is ``R'_i = R_i C_i`` with
 the constant frame change ``C_i`` (the smallest rotation taking the bone's local +Y to
 the new segment, so the roll is kept as well as it can be). The world rotation of each
@@ -252,9 +253,13 @@ def joint_skeleton(skeleton: Skeleton, vertices: np.ndarray | None = None,
     deform = np.asarray(skeleton.deform, dtype=bool).copy()
     if weights is not None and len(weights):
         deform &= np.asarray(weights).max(axis=0) > 0
+    # A bone starts where its parent's new segment ends when it is that parent's principal
+    # child: it is connected in the joint skeleton as it would be in a rig with tails.
+    par = np.asarray(skeleton.parents)
+    connected = (par >= 0) & (principal[np.maximum(par, 0)] == np.arange(n))
     joint = Skeleton(skeleton.names, skeleton.parents, heads, heads + directions *
                      lengths[:, None], rest @ change, skeleton.inherit_rotation,
-                     skeleton.connected, deform)
+                     connected, deform)
     return JointSkeleton(joint, change, principal)
 
 

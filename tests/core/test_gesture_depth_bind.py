@@ -175,3 +175,39 @@ def test_depth_orders_the_solve_cannot_meet_are_dropped():
     # degrees out of the view plane, 4.9% of the height off against 1.3% without.)
     tj = posed_joints(s, sk, Pose.identity(6))
     assert np.linalg.norm(res.joints3d - tj, axis=1).max() < 1e-3
+
+
+def test_natural_bend_holds_on_the_joint_skeleton_of_a_token_rig():
+    """An imported rig (token bones, nothing connected) read as its joint skeleton bends
+    its knee the rest pose's way, as the rig with tails does."""
+    from gesture_pose.core.joint_skeleton import joint_skeleton, to_joint_pose
+    from tests.core.fixtures import frame_along
+
+    sk = _hinge_chain()
+    rng = np.random.default_rng(3)
+    frames = np.stack([frame_along(d, 0.0) for d in rng.normal(size=(sk.n_bones, 3))])
+    token = replace(sk, rest_tails=sk.rest_heads + 0.01 * frames[:, :, 1], rest_frames=frames,
+                    connected=np.zeros(sk.n_bones, bool))
+    # The foot's skin (what the reader passes for end bones): points forward to the toe.
+    vertices = sk.rest_heads[6] + np.linspace(0.02, 0.15, 10)[:, None] * [0.0, -1.0, 0.0]
+    weights = np.zeros((10, sk.n_bones))
+    weights[:, 6] = 1.0
+    joint = joint_skeleton(token, vertices, weights)
+    cam = front_camera(ortho=True)
+    results = {}
+    for name, skel in (("tails", sk), ("joints", joint.skeleton)):
+        pose = Pose.identity(skel.n_bones)
+        for bone, angle in ((4, -40.0), (5, 100.0)):
+            state = skel.forward(pose)
+            world = exp_map(np.array([np.radians(angle), 0.0, 0.0]))
+            frame = state.frames[bone]
+            pose = pose.with_rotations(np.array([bone]),
+                                       (frame.T @ world @ frame @ pose.rotations[bone])[None])
+        s = solving_skeleton(skel)
+        res = solve_pose3d(skel, project_embedding(skel, s, pose, cam), cam,
+                           to_joint_pose(Pose.identity(skel.n_bones), joint.frame_change)
+                           if name == "joints" else None)
+        knee, ankle = s.head_joint[5], s.tail_joint[5]
+        results[name] = float((res.joints3d[ankle] - res.joints3d[knee]) @ FORWARD)
+    assert results["tails"] > 0.4
+    assert results["joints"] == pytest.approx(results["tails"], abs=0.05)

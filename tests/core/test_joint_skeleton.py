@@ -157,3 +157,13 @@ def test_axis_settings_follow_a_permutation_and_are_dropped_otherwise():
     qp = swap.T @ q @ swap
     axis = np.array([qp[2, 1] - qp[1, 2], qp[0, 2] - qp[2, 0], qp[1, 0] - qp[0, 1]])
     assert abs(axis[1]) < 1e-12 and abs(axis[0]) > 0.1
+
+
+def test_principal_children_are_connected_in_the_joint_skeleton():
+    """Connected as a rig with tails would be: the chain's next bone, not a side branch."""
+    joint = joint_skeleton(token_figure()).skeleton
+    connected = {n for n, c in zip(joint.names, joint.connected, strict=True) if c}
+    assert connected == {"Hips", "Spine", "Chest", "Neck", "Head", "Hand.L", "Hand.R",
+                         "Foot.L", "Foot.R"}
+    tails = joint.rest_tails[joint.parents[joint.connected]]
+    np.testing.assert_allclose(joint.rest_heads[joint.connected], tails, atol=1e-12)
