@@ -212,11 +212,12 @@ class _Setup:
 
 def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pose,
            opts: DepthOptions, link_confidence: np.ndarray | None = None,
-           skip: frozenset[str] = frozenset()
+           skip: frozenset[int] = frozenset()
            ) -> tuple[_Setup, np.ndarray, np.ndarray, tuple[str, ...]]:
     """Drawing cues, terms and constraints (step 1 of the module docstring).
 
-    The depth orders labelled in ``skip`` are left out.
+    The depth orders at the indices in ``skip`` (of the list read from the drawing) are
+    left out.
     """
     s = embedding.solving
     jmap = twist.joint_map(skeleton, s)
@@ -287,7 +288,7 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
                                           opts.junction_tolerance, opts.junction_interior,
                                           opts.occlusion_min_parts, opts.occlusion_overlap,
                                           opts.t_junctions)
-    order = [c for c in order if c.label not in skip]
+    order = [c for k, c in enumerate(order) if k not in skip]
     if order:
         rows = ordering.ordering_rows(order, frame.forward, n_j)
         # A hair of extra margin so that the nonlinear constraints hold, not only their
@@ -363,26 +364,30 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     args = (skeleton, embedding, camera, pose, lock_rotation, ik_limits, pinned, opts,
             link_confidence)
     result = _solve(*args)
-    unmet = tuple(c.label for c, ok in zip(result.ordering, result.ordering_satisfied,
-                                           strict=True) if not ok)
-    if not unmet or not opts.drop_unmet_orders:
+    unmet = np.flatnonzero(~np.asarray(result.ordering_satisfied, dtype=bool))
+    if not len(unmet) or not opts.drop_unmet_orders:
         return result
     # Orders the solve could not meet contradict the drawing or each other (a limb drawn
     # both in front of and behind another): forcing them twists limbs far from what is
     # drawn. Solve again without them.
-    again = _solve(*args, skip=frozenset(unmet))
+    again = _solve(*args, skip=frozenset(int(k) for k in unmet))
     timings = {k: v + result.timings.get(k, 0.0) for k, v in again.timings.items()}
+    labels = sorted({result.ordering[k].label for k in unmet})
     note = (f"{len(unmet)} depth-order constraint(s) contradicted the drawing and were "
-            f"dropped: {', '.join(unmet)}.")
+            f"dropped: {', '.join(labels)}.")
     return replace(again, timings=timings, warnings=(note, *again.warnings))
 
 
 def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pose | None,
            lock_rotation: np.ndarray | None, ik_limits: np.ndarray | None,
            pinned: np.ndarray | None, opts: DepthOptions,
-           link_confidence: np.ndarray | None, skip: frozenset[str] = frozenset()
+           link_confidence: np.ndarray | None, skip: frozenset[int] = frozenset()
            ) -> Pose3DResult:
-    """One solve of :func:`solve_pose3d` without the depth orders labelled in ``skip``."""
+    """One solve of :func:`solve_pose3d` without the depth orders at the indices in ``skip``.
+
+    A solve that already dropped orders runs to convergence (no early stop on orders
+    still unmet).
+    """
     t0 = time.perf_counter()
     base = pose if pose is not None else Pose.identity(skeleton.n_bones)
     bones = np.asarray(embedding.solving.bones, dtype=int)
@@ -418,7 +423,7 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
             converged = True  # neither the drawing energy nor the violation changes
             break
         previous, previous_violation = energy, violation
-        if (opts.drop_unmet_orders and setup.order and it > opts.order_patience
+        if (opts.drop_unmet_orders and not skip and setup.order and it > opts.order_patience
                 and np.any(ordering.violations(setup.order, setup.frame.depth(X))
                            > opts.tolerance * mean_len)):
             break  # orders still unmet this late: solve_pose3d drops them and solves again
