@@ -10,6 +10,7 @@ the pins and "Next Suggestion" needs no new solve; both survive saving the file.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import bpy
@@ -268,35 +269,58 @@ def solve_scene(context, op, arm_obj, sketch_obj) -> tuple[StickResult, list[str
     return result, written
 
 
-def write_stick(sketch_obj, stick: StickFigure, camera: Camera, depth: float, frame: int
-                ) -> None:
-    """Replace the active layer's strokes by one straight stroke per drawn stick edge."""
+def write_stick(sketch_obj, stick: StickFigure, camera: Camera, depth: float, frame: int,
+                clear: Sequence[str] = ()) -> None:
+    """Replace the active layer's strokes by one straight stroke per drawn stick edge.
+
+    Args:
+        sketch_obj: The Grease Pencil sketch.
+        stick: The figure to write.
+        camera: The view it was drawn in.
+        depth: Depth of the written strokes from the camera.
+        frame: Scene frame whose drawing is written.
+        clear: Other layers whose strokes at ``frame`` were part of the figure: emptied,
+            so that the figure is drawn once.
+    """
     edges = stick.drawn_edges()
     lines = [camera.unproject_at_depth(np.linspace(stick.points[a], stick.points[b], 8),
                                        depth) for a, b in edges]
     layer = sketch_obj.data.layers.active or sketch_obj.data.layers[0]
     write_strokes(sketch_obj, layer.name, lines, frame=frame, replace=True)
+    for name in clear:
+        if name != layer.name:
+            write_strokes(sketch_obj, name, [], frame=frame, replace=True)
 
 
-def _layer_strokes(sketch_obj, frame: int) -> tuple[str, list[np.ndarray], list[np.ndarray]]:
-    """The active layer's name, its strokes' world points and their point radii."""
-    layer = sketch_obj.data.layers.active or sketch_obj.data.layers[0]
-    strokes = [s for s in read_sketch(sketch_obj, frame) if s.layer_name == layer.name]
-    return (layer.name, [s.points_world.copy() for s in strokes],
-            [np.asarray(s.radius, float).copy() for s in strokes])
+#: Strokes saved per layer: ``{layer name: (world points per stroke, radii per stroke)}``.
+SavedStrokes = dict[str, tuple[list[np.ndarray], list[np.ndarray]]]
 
 
-def _restore_strokes(sketch_obj, frame: int, saved: tuple) -> None:
-    """Write back strokes saved by :func:`_layer_strokes`: points and per-point radii."""
-    layer_name, lines, radii = saved
-    if not lines:
-        return
-    layer = write_strokes(sketch_obj, layer_name, lines, frame=frame, replace=True,
-                          radius=float(np.mean(np.concatenate(radii))))
-    drawing = layer.get_frame_at(frame).drawing
-    attr = drawing.attributes.get("radius")
-    if attr is not None:
-        attr.data.foreach_set("value", np.concatenate(radii).astype(np.float32))
+def _sketch_strokes(sketch_obj, frame: int) -> SavedStrokes:
+    """Every visible layer's strokes at ``frame`` (the active layer always, maybe empty)."""
+    active = (sketch_obj.data.layers.active or sketch_obj.data.layers[0]).name
+    saved: SavedStrokes = {active: ([], [])}
+    for s in read_sketch(sketch_obj, frame):
+        lines, radii = saved.setdefault(s.layer_name, ([], []))
+        lines.append(s.points_world.copy())
+        radii.append(np.asarray(s.radius, float).copy())
+    return saved
+
+
+def _restore_strokes(sketch_obj, frame: int, saved: SavedStrokes) -> None:
+    """Write back strokes saved by :func:`_sketch_strokes`: points and per-point radii.
+
+    A layer that had no stroke is emptied again.
+    """
+    for layer_name, (lines, radii) in saved.items():
+        if not lines:
+            write_strokes(sketch_obj, layer_name, [], frame=frame, replace=True)
+            continue
+        layer = write_strokes(sketch_obj, layer_name, lines, frame=frame, replace=True,
+                              radius=float(np.mean(np.concatenate(radii))))
+        attr = layer.get_frame_at(frame).drawing.attributes.get("radius")
+        if attr is not None:
+            attr.data.foreach_set("value", np.concatenate(radii).astype(np.float32))
 
 
 class StickDragSession:
@@ -341,7 +365,7 @@ class StickDragSession:
         self.camera, self.depth, self.stick = st.camera, st.sketch_depth, st.stick
         self.joint: int | None = None
         self._start: StickFigure | None = None
-        self._saved: tuple[str, list[np.ndarray], list[np.ndarray]] | None = None
+        self._saved: SavedStrokes | None = None
         self.moved = False
 
     @property
@@ -358,7 +382,7 @@ class StickDragSession:
             self.joint = None
             return None
         self.joint, self._start, self.moved = j, self.stick, False
-        self._saved = _layer_strokes(self.sketch, self.frame)
+        self._saved = _sketch_strokes(self.sketch, self.frame)
         return self.stick.joint_names[j]
 
     def move(self, xy) -> bool:
@@ -367,7 +391,8 @@ class StickDragSession:
             return False
         self.stick = drag_node(self._start, self.joint, np.asarray(xy, float),
                                self.global_radius)
-        write_stick(self.sketch, self.stick, self.camera, self.depth, self.frame)
+        write_stick(self.sketch, self.stick, self.camera, self.depth, self.frame,
+                    clear=[name for name, (lines, _) in self._saved.items() if lines])
         self.moved = True
         return True
 
@@ -389,7 +414,8 @@ class StickDragSession:
         """One viewport event: what the modal operator returns for it.
 
         Left mouse press picks a joint, mouse moves drag it, release poses the character;
-        Esc during a drag cancels the drag, otherwise Esc or right mouse ends the editing.
+        Esc during a drag cancels the drag, otherwise Esc ends the editing; right mouse
+        cancels a drag in progress and ends the editing.
 
         Args:
             kind: Blender's event type (``"LEFTMOUSE"``, ``"MOUSEMOVE"``, ``"ESC"``, ...).
@@ -404,7 +430,7 @@ class StickDragSession:
             InputError: Posing from the edited drawing failed (the editing goes on).
         """
         if kind in {"ESC", "RIGHTMOUSE"} and value == "PRESS":
-            if kind == "ESC" and self.cancel():
+            if self.cancel() and kind == "ESC":
                 return "RUNNING_MODAL"
             return "FINISHED"
         if kind == "LEFTMOUSE" and value == "PRESS":

@@ -243,6 +243,32 @@ def test_drag_session_cancel_restores_the_drawing(registered):
     assert session.handle("ESC", "PRESS", start[knee]) == "FINISHED"
 
 
+def test_drag_session_right_mouse_restores_a_figure_on_another_layer(registered):
+    """The figure drawn on a layer that is not the active one: a drag draws it once (in the
+    active layer), and right mouse during the drag puts every layer back and ends."""
+    from gesture_pose.blender.read_strokes import read_sketch
+
+    sc, session = _session()
+    arm, sketch = sc["armature"], sc["sketch"]
+    figure_layer = sketch.data.layers.active.name
+    sketch.data.layers.new("Notes", set_active=True)  # active, empty
+    original = read_sketch(sketch)
+    assert {s.layer_name for s in original} == {figure_layer}
+    start = session.stick.points.copy()
+    knee = session.stick.joint_names.index("knee.R")
+    session.handle("LEFTMOUSE", "PRESS", start[knee])
+    session.handle("MOUSEMOVE", "NOTHING", start[knee] + [30.0, 10.0])
+    edited = read_sketch(sketch)
+    assert {s.layer_name for s in edited} == {"Notes"}  # drawn once, not twice
+    assert session.handle("RIGHTMOUSE", "PRESS", start[knee]) == "FINISHED"
+    restored = read_sketch(sketch)
+    assert [s.layer_name for s in restored] == [s.layer_name for s in original]
+    for a, b in zip(restored, original, strict=True):
+        assert np.array_equal(a.points_world, b.points_world)
+        assert np.array_equal(a.radius, b.radius)
+    assert not arm.animation_data or not arm.animation_data.action
+
+
 def test_edit_operator_needs_a_view_headless(registered):
     from gesture_pose.blender.operators.stick import GESTUREPOSE_OT_edit_stick_figure
 
