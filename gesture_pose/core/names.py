@@ -21,3 +21,19 @@ def mirror_name(name: str) -> str | None:
         if x in name:
             return name.replace(x, y, 1)
     return None
+
+
+def side_of(name: str) -> str | None:
+    """The side of a bone name: ``"L"``, ``"R"`` or None (the spine, a tail).
+
+    The same conventions as :func:`mirror_name`: ``.L``/``_l``/``-L`` suffixes and the
+    words ``Left``/``Right``.
+    """
+    for sep in ".-_":
+        for side in "LR":
+            if name.endswith(sep + side) or name.endswith(sep + side.lower()):
+                return side
+    for word in ("Left", "Right"):
+        if word in name:
+            return word[0]
+    return None

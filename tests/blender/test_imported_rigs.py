@@ -112,9 +112,9 @@ def test_written_pose_matches_posing_the_rig_directly(bpy_blank):
     assert set(written) == set(rotations)
     np.testing.assert_allclose(_world_matrices(token), direct, atol=1e-5)
     np.testing.assert_allclose(_deformed(token), _deformed(proper), atol=1e-5)
-    for name in written:
-        mode = token.pose.bones[name].rotation_mode
-        assert keyed_frames(token, name, rotation_channel(mode)) == [3.0]
+    for pb in token.pose.bones:  # keys on the written bones only
+        frames = keyed_frames(token, pb.name, rotation_channel(pb.rotation_mode))
+        assert frames == ([3.0] if pb.name in written else [])
     # Reading again gives the written pose, in the joint skeleton's frames.
     np.testing.assert_allclose(read_armature(token).pose.rotations, posed.pose.rotations,
                                atol=1e-5)
@@ -178,8 +178,8 @@ SOLVING = ("pelvis", "spine", "spine.001", "chest", "neck", "head", "shoulder.L"
 # shortest kept bone, and the hands (9.01 cm, 2 steps are 9.0 cm on the proper rig) drop
 # out while the mesh-long toes come in. With the same bones the fits agree. The rigs are
 # compared on the mean error: the median of 25 joints jumps with one joint crossing it
-# (step: 1.06 -> 1.72 while the mean went 1.70 -> 2.06). Limits: the measurements plus one
-# joint / a few tenths of a percent.
+# (step: 1.06 -> 1.72 while the mean went 1.70 -> 2.06). Limits: the measurements plus a
+# few tenths of a percent; the share within 4% two joints below the measured 84% (0.76).
 @pytest.mark.parametrize("pose_name", ["step", "raise_left_arm"])
 def test_fit_drawing_on_the_token_rig_matches_the_proper_rig(registered, pose_name):
     proper, token, camera, sketch = _traced_pair(pose_name)
@@ -219,9 +219,9 @@ def test_pose_drawing_keys_the_real_bones(registered):
     changed = np.flatnonzero(np.abs(after.pose.rotations - before.pose.rotations)
                              .max(axis=(1, 2)) > 1e-6)
     assert len(changed) >= 8
-    for i in changed:
+    for i in range(len(after.names)):  # keys on the changed bones only, at this frame
         channel = rotation_channel(after.rotation_modes[i])
-        assert keyed_frames(token, after.names[i], channel) == [4.0]
+        assert keyed_frames(token, after.names[i], channel) == ([4.0] if i in changed else [])
     # The posed heads are near the drawn pose's (3D, root aligned, % of the height), as
     # the whole Pose gets them on the proper humanoid (below 12%).
     got = read_armature(token)

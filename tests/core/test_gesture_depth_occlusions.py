@@ -255,10 +255,12 @@ def test_bind_side_is_dropped_for_a_bone_turned_far_in_the_image():
     assert kept[1] == 1.0 and old[1] == -1.0  # away, not the bind pose's towards
 
 
-def test_left_side_names():
-    assert [start._is_left(n) for n in ("upper_arm.L", "hip_l", "Arm-L", "mixamorig:LeftArm",
-                                        "upper_arm.R", "Right_Foot_Ball", "spine")] == \
-        [True, True, True, True, False, False, False]
+def test_side_names():
+    from gesture_pose.core.names import side_of
+
+    assert [side_of(n) for n in ("upper_arm.L", "hip_l", "Arm-L", "mixamorig:LeftArm",
+                                 "upper_arm.R", "Right_Foot_Ball", "spine")] == \
+        ["L", "L", "L", "L", "R", "R", None]
 
 
 def test_a_link_drawn_longer_than_it_can_be_weighs_little():

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...names import side_of
 from ...rotations import log_map
 from ...skeleton import Pose, Skeleton
 from ..solving import symmetric_joint_pairs
@@ -41,17 +42,6 @@ def _first_pairs(solving: SolvingSkeleton) -> np.ndarray:
     return pairs[level == level.min()]
 
 
-def _is_left(bone: str) -> bool:
-    """Whether a bone name is on the left side (``.L``, ``_l``, ``-L``, ``Left...``)."""
-    return bone[-2:] in {f"{sep}{x}" for sep in ".-_" for x in "Ll"} or "Left" in bone
-
-
-def _is_sided(bone: str) -> bool:
-    """Whether a bone name is on the left or the right side (a limb's, not the spine's)."""
-    return _is_left(bone) or bone[-2:] in {f"{sep}{x}" for sep in ".-_" for x in "Rr"} \
-        or "Right" in bone
-
-
 def bind_front(solving: SolvingSkeleton, rest_joints: np.ndarray, frame: ViewFrame,
                min_slope: float = 0.3) -> float:
     """Which way the bind pose faces along the view: -1 towards the viewer, +1 away, 0 unclear.
@@ -73,8 +63,8 @@ def bind_front(solving: SolvingSkeleton, rest_joints: np.ndarray, frame: ViewFra
     pairs = _first_pairs(solving)
     if not len(pairs):
         return 0.0
-    left = np.array([1.0 if _is_left(solving.joint_bones[i].rpartition(" ")[0]) else -1.0
-                     for i, _ in pairs])
+    sides = [side_of(solving.joint_bones[i].rpartition(" ")[0]) for i, _ in pairs]
+    left = np.array([1.0 if side == "L" else -1.0 for side in sides])
     across = np.sum(left[:, None] * (rest_joints[pairs[:, 0]] - rest_joints[pairs[:, 1]]),
                     axis=0)
     front = np.cross(across, frame.up)
@@ -227,7 +217,8 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     has_child = np.zeros(jmap.n_bones, bool)
     has_child[np.asarray(s.parent)[np.asarray(s.parent) >= 0]] = True
     hinge = np.array([bool(skeleton.connected[b]) and has_child[k]
-                      and _is_sided(skeleton.names[b]) for k, b in enumerate(jmap.bones)])
+                      and side_of(skeleton.names[b]) is not None
+                      for k, b in enumerate(jmap.bones)])
     pose = bind
     for k, bone in enumerate(jmap.bones):
         if fixed[k]:
