@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import bpy
 import numpy as np
@@ -260,6 +260,8 @@ def solve_scene(context, op, arm_obj, sketch_obj) -> tuple[StickResult, list[str
         base_pose=base, env_pins=env_pins, limb_pins=limb_pins, seed=op.seed,
         n_suggestions=op.suggestions, use_contact=op.use_contact)
     result = solve_stick(inp)
+    if data.warnings:  # the reader's notes (an imported rig's locks and limits dropped)
+        result = replace(result, warnings=(*data.warnings, *result.warnings))
     best = result.suggestions[0]
     written = apply_pose(arm_obj, data, best.pose, bones=solved, insert_keys=op.insert_keys,
                          frame=scene.frame_current, location_bones=[st.figure.root_bone])
