@@ -360,7 +360,7 @@ def test_quadruped_is_posed_by_topology_with_its_default_ranges(registered):
             assert abs(axis @ g.bases[0][:, 0]) / np.linalg.norm(axis) > 0.999, name
 
 
-def test_pin_joint_offers_and_checks_the_characters_own_joints(registered):
+def test_pin_joint_offers_and_checks_the_characters_own_joints(registered, monkeypatch):
     from gesture_pose.blender.operators.stick import _search_joints, figure_edges
     from gesture_pose.blender.read_view import camera_from_object
     from gesture_pose.core.stick.figure import character_figure
@@ -379,6 +379,22 @@ def test_pin_joint_offers_and_checks_the_characters_own_joints(registered):
     typed = names[-1][:3]
     offered = _search_joints(op_like, bpy.context, typed)
     assert names[-1] in offered and all(typed.lower() in o.lower() for o in offered)
+    # Typing again does not read the armature again; changing its bones does.
+    from gesture_pose.blender.operators import stick as stick_op
+
+    reads = []
+    real_read = stick_op.read_armature
+    monkeypatch.setattr(stick_op, "read_armature",
+                        lambda obj: reads.append(obj.name) or real_read(obj))
+    assert _search_joints(op_like, bpy.context, typed) == offered
+    assert reads == []
+    for dz in (0.01, -0.01):  # a bone edited, then put back
+        bpy.context.view_layer.objects.active = arm
+        bpy.ops.object.mode_set(mode="EDIT")
+        arm.data.edit_bones[-1].tail.z += dz
+        bpy.ops.object.mode_set(mode="OBJECT")
+        assert figure_edges(bpy.context, arm.name)[0] == names
+    assert reads == [arm.name, arm.name]
     # Its stick figure, drawn at rest.
     state = data.skeleton.forward(data.pose)
     px = cam.project(fig.joint_positions(state.heads[None], state.tails[None])[0])

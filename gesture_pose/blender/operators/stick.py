@@ -46,20 +46,41 @@ from ..write_pose import apply_pose
 HUMANOID_JOINT_NAMES = tuple(n for n, _, _ in HUMANOID_JOINTS)
 
 
+#: The last armature's stick joints and edges, keyed by its bones (see :func:`figure_edges`).
+_FIGURE_CACHE: dict[bytes, tuple[tuple[str, ...], tuple[str, ...]]] = {}
+
+
+def _bones_key(arm) -> bytes:
+    """What the matched figure depends on: the bones' names, parents and rest positions."""
+    bones = arm.data.bones
+    ends = np.zeros((2, 3 * len(bones)), np.float32)
+    bones.foreach_get("head_local", ends[0])
+    bones.foreach_get("tail_local", ends[1])
+    names = "|".join(f"{b.name}<{b.parent.name if b.parent else ''}" for b in bones)
+    return arm.name.encode() + b"/" + names.encode() + ends.tobytes()
+
+
 def figure_edges(context, armature: str = "") -> tuple[tuple[str, ...], tuple[str, ...]]:
     """The stick joints of the character and its edges as ``"parent,child"``.
 
     From the armature named ``armature`` (else the one the panel or selection gives), by
     the same matching Pose Stick Figure uses; the humanoid's joints when none is found.
+    The Pin Joint search calls this on every keystroke, so the last armature's answer is
+    kept until its bones change (reading an imported rig's skin takes a noticeable time).
     """
     try:
         arm = resolve_armature(context, armature)
-        data = read_armature(arm)
-        figure, _ = character_figure(data.skeleton, data.ik_limits)
+        key = _bones_key(arm)
+        if key not in _FIGURE_CACHE:
+            data = read_armature(arm)
+            figure, _ = character_figure(data.skeleton, data.ik_limits)
+            _FIGURE_CACHE.clear()
+            _FIGURE_CACHE[key] = (figure.joint_names,
+                                  _edges(figure.joint_names, figure.joint_parents))
     except GesturePoseError:
         edges = tuple(f"{p},{n}" for n, p, _ in HUMANOID_JOINTS if p)
         return HUMANOID_JOINT_NAMES, edges
-    return figure.joint_names, _edges(figure.joint_names, figure.joint_parents)
+    return _FIGURE_CACHE[key]
 
 
 def _edges(names: tuple[str, ...], parents: np.ndarray) -> tuple[str, ...]:
