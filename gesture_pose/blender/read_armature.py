@@ -66,6 +66,11 @@ class ArmatureData:
             (``R'_i = R_i C_i``), ``(n, 3, 3)``; None when the bones are read as they are.
             ``pose`` is then in the joint skeleton's frames (``Q' = C^T Q C``).
         warnings: Notes about the read (e.g. rotation locks that could not be kept).
+        limit_axes: For a rig read as its joint skeleton, the real bones' local axes in
+            the skeleton's frames (columns ``C_i^T e_k``), ``(n, 3, 3)``: the rig's own
+            locks and limits (:meth:`axis_settings`) are about them. None otherwise.
+        rig_lock_rotation: The rig's rotation locks on its own axes (with ``limit_axes``).
+        rig_ik_limits: The rig's IK limits on its own axes (with ``limit_axes``).
     """
 
     object_name: str
@@ -80,6 +85,22 @@ class ArmatureData:
     matrix_world: np.ndarray
     frame_change: np.ndarray | None = None
     warnings: tuple[str, ...] = ()
+    limit_axes: np.ndarray | None = None
+    rig_lock_rotation: np.ndarray | None = None
+    rig_ik_limits: np.ndarray | None = None
+
+    def axis_settings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Locks and IK limits with the axes they are about, for solvers that take axes.
+
+        Returns:
+            ``(lock (n, 3), ik_limits (n, 3, 2), axes (n, 3, 3) or None)``: the rig's own
+            settings about its real bones' axes on an imported rig read as its joint
+            skeleton (every bone's, also those ``lock_rotation`` drops), else
+            ``lock_rotation`` and ``ik_limits`` on the bones' own axes.
+        """
+        if self.limit_axes is None:
+            return self.lock_rotation, self.ik_limits, None
+        return self.rig_lock_rotation, self.rig_ik_limits, self.limit_axes
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -238,10 +259,12 @@ def read_armature(arm_obj: bpy.types.Object, joints: bool = True) -> ArmatureDat
         pinned |= pinned_coll
     lock = _bulk(pose_bones, "lock_rotation", 3, bool)[pb_order]
     limits = _ik_limits(pose_bones)[pb_order]
-    change, warnings = None, ()
+    change, warnings, axes, rig_lock, rig_limits = None, (), None, None, None
     if joints and has_token_bones(skeleton):
+        rig_lock, rig_limits = lock, limits
         skeleton, pose, change, lock, limits, warnings = _as_joints(arm_obj, skeleton, pose,
                                                                     lock, limits)
+        axes = np.swapaxes(change, 1, 2)  # columns C^T e_k
     return ArmatureData(
         object_name=arm_obj.name,
         skeleton=skeleton,
@@ -255,6 +278,9 @@ def read_armature(arm_obj: bpy.types.Object, joints: bool = True) -> ArmatureDat
         matrix_world=world,
         frame_change=change,
         warnings=warnings,
+        limit_axes=axes,
+        rig_lock_rotation=rig_lock,
+        rig_ik_limits=rig_limits,
     )
 
 
@@ -277,6 +303,7 @@ def _as_joints(arm_obj: bpy.types.Object, skeleton: Skeleton, pose: Pose, lock: 
     if dropped.any():
         warnings = (f"Bones {[skeleton.names[i] for i in np.flatnonzero(dropped)][:5]} of "
                     f"'{arm_obj.name}' are read head to child; their rotation locks and IK "
-                    "limits do not fall on its axes and are ignored.",)
+                    "limits do not fall on its axes: Pose (gesture drawings) keeps them, "
+                    "the other modes ignore them.",)
     return (joint.skeleton, to_joint_pose(pose, joint.frame_change), joint.frame_change,
             lock, limits, warnings)

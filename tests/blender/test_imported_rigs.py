@@ -278,7 +278,49 @@ def test_locks_that_do_not_fall_on_the_joint_axes_are_reported(bpy_blank):
     bpy.context.view_layer.update()
     data = read_armature(token)
     assert len(data.warnings) == 1
-    assert "forearm.L" in data.warnings[0] and "ignored" in data.warnings[0]
+    assert "forearm.L" in data.warnings[0] and "ignore" in data.warnings[0]
     assert not data.lock_rotation[data.skeleton.index("forearm.L")].any()
     token.pose.bones["forearm.L"].lock_rotation = (False, False, False)
     assert read_armature(token).warnings == ()
+
+
+def test_pose_keeps_ik_limits_about_the_real_bones_axes(registered, monkeypatch):
+    """IK limits set on an imported rig's bone restrict Pose about that bone's own axes,
+    which the joint skeleton's frames do not share."""
+    from gesture_pose.core.gesture.depth.synthetic import project_embedding
+    from gesture_pose.core.gesture.solving import solving_skeleton
+    from gesture_pose.core.rotations import log_map
+
+    token, _ = token_humanoid()
+    camera = camera_from_object(builders.add_camera(token), bpy.context.scene)
+    builders.apply_rotations(token, builders.HUMANOID_POSES["raise_left_arm"])
+    bpy.context.view_layer.update()
+    truth = read_armature(token)
+    builders.reset_pose(token)
+    bpy.context.view_layer.update()
+
+    def oracle_fit(arm_obj, sketch_obj, camera, frame=None, params=None):
+        sk = read_armature(arm_obj).skeleton
+        return project_embedding(sk, solving_skeleton(sk), truth.pose, camera, 0.06,
+                                 "auto"), 1
+
+    monkeypatch.setattr(pose_drawing, "fit_scene_drawing", oracle_fit)
+    sketch = builders.add_grease_pencil("Sketch", [np.array([[0.0, -1.0, 0.0],
+                                                             [0.1, -1.0, 0.5]])])
+    i = truth.skeleton.index("forearm.L")
+
+    def real_rotvec() -> np.ndarray:
+        bpy.context.view_layer.update()
+        return log_map(read_armature(token, joints=False).pose.rotations[i][None])[0]
+
+    pose_drawing.pose_from_drawing(token, sketch, camera, insert_keys=False, show_fit=False)
+    assert np.abs(real_rotvec()).max() > 0.3
+    builders.reset_pose(token)
+    pb = token.pose.bones["forearm.L"]
+    for ax in "xyz":
+        setattr(pb, f"use_ik_limit_{ax}", True)
+        setattr(pb, f"ik_min_{ax}", -0.1)
+        setattr(pb, f"ik_max_{ax}", 0.1)
+    assert read_armature(token).limit_axes is not None
+    pose_drawing.pose_from_drawing(token, sketch, camera, insert_keys=False, show_fit=False)
+    assert np.abs(real_rotvec()).max() <= 0.1 + 2e-3

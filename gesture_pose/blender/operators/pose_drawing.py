@@ -92,9 +92,10 @@ def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
     timings = {"fit": time.perf_counter() - t0}
     tick(0.8)
     t1 = time.perf_counter()
-    result = solve_pose3d(data.skeleton, embedding, camera, data.pose,
-                          lock_rotation=data.lock_rotation, ik_limits=data.ik_limits,
-                          pinned=data.pinned, options=options)
+    lock, limits, axes = data.axis_settings()
+    result = solve_pose3d(data.skeleton, embedding, camera, data.pose, lock_rotation=lock,
+                          ik_limits=limits, pinned=data.pinned, options=options,
+                          limit_axes=axes)
     timings["solve3d"] = time.perf_counter() - t1
     tick(0.95)
     t2 = time.perf_counter()

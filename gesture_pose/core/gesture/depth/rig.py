@@ -12,7 +12,8 @@ from .qp import LinearConstraint
 
 def rig_rows(skeleton: Skeleton, jmap: twist.JointMap, pose: Pose, frames: np.ndarray,
               lock: np.ndarray | None, limits: np.ndarray | None,
-              pinned: np.ndarray | None) -> list[LinearConstraint]:
+              pinned: np.ndarray | None, axes: np.ndarray | None = None
+              ) -> list[LinearConstraint]:
     """Rig restrictions on the twists: pinned bones, locked axes and IK limits.
 
     Args:
@@ -24,6 +25,9 @@ def rig_rows(skeleton: Skeleton, jmap: twist.JointMap, pose: Pose, frames: np.nd
         limits: IK limits ``[min, max]`` per local axis, radians, ``(n, 3, 2)`` (NaN when
             unlimited), or None.
         pinned: Bones kept at their current rotation, ``(n,)`` bool, or None.
+        axes: The local axes ``lock`` and ``limits`` refer to, as columns, ``(n, 3, 3)``
+            (None: the bones' own axes). An imported rig read as its joint skeleton has
+            its settings about the real bones' axes ``C^T e_k``.
 
     Returns:
         One constraint block on the twists (empty list when the rig restricts nothing).
@@ -31,7 +35,9 @@ def rig_rows(skeleton: Skeleton, jmap: twist.JointMap, pose: Pose, frames: np.nd
     The local rotation vector after the step is about ``log(Q) + F^T delta`` (first order
     around small rotations), so a locked local axis ``a`` gives the row
     ``F[:, a] . delta = -log(Q)_a`` and an IK limit ``[lo, hi]`` the bounds
-    ``lo - log(Q)_a <= F[:, a] . delta <= hi - log(Q)_a``.
+    ``lo - log(Q)_a <= F[:, a] . delta <= hi - log(Q)_a``; about a general local axis
+    ``u`` (``axes``), ``F u`` and ``log(Q) . u`` take the places of ``F[:, a]`` and
+    ``log(Q)_a``.
     """
     m = jmap.n_bones
     rows, lo, hi, labels = [], [], [], []
@@ -48,10 +54,12 @@ def rig_rows(skeleton: Skeleton, jmap: twist.JointMap, pose: Pose, frames: np.nd
                 row[k, axis] = 1.0
                 lo_k = hi_k = 0.0
             else:
-                row[k] = frames[k][:, axis]
-                lo_k = hi_k = -rotvec[k, axis]
+                u = np.eye(3)[axis] if axes is None else axes[bone][:, axis]
+                row[k] = frames[k] @ u
+                now = float(rotvec[k] @ u)
+                lo_k = hi_k = -now
                 if not locked:
-                    lo_k, hi_k = lim[0] - rotvec[k, axis], lim[1] - rotvec[k, axis]
+                    lo_k, hi_k = lim[0] - now, lim[1] - now
             rows.append(row.ravel())
             lo.append(lo_k)
             hi.append(hi_k)

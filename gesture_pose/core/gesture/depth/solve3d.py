@@ -335,7 +335,8 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
                  pose: Pose | None = None, *, lock_rotation: np.ndarray | None = None,
                  ik_limits: np.ndarray | None = None, pinned: np.ndarray | None = None,
                  options: DepthOptions | None = None,
-                 link_confidence: np.ndarray | None = None) -> Pose3DResult:
+                 link_confidence: np.ndarray | None = None,
+                 limit_axes: np.ndarray | None = None) -> Pose3DResult:
     """Lift a 2D skeletal embedding to the 3D pose it depicts (Gesture3D Section 7).
 
     Args:
@@ -352,6 +353,9 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
         options: Parameters (paper defaults).
         link_confidence: Extra E_c weight factor per joint-tree link (links ordered by
             child joint, as :func:`energies.joint_links`), shape ``(L,)`` (optional).
+        limit_axes: The local axes ``lock_rotation`` and ``ik_limits`` refer to, as
+            columns, ``(n, 3, 3)`` (None: the bones' own axes). An imported rig read as its
+            joint skeleton keeps its settings about the real bones' axes ``C^T e_k``.
 
     Returns:
         The solved pose and diagnostics.
@@ -362,7 +366,7 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     """
     opts = options or DepthOptions()
     args = (skeleton, embedding, camera, pose, lock_rotation, ik_limits, pinned, opts,
-            link_confidence)
+            link_confidence, limit_axes)
     result = _solve(*args)
     unmet = np.flatnonzero(~np.asarray(result.ordering_satisfied, dtype=bool))
     if not len(unmet) or not opts.drop_unmet_orders:
@@ -381,8 +385,8 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
 def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pose | None,
            lock_rotation: np.ndarray | None, ik_limits: np.ndarray | None,
            pinned: np.ndarray | None, opts: DepthOptions,
-           link_confidence: np.ndarray | None, skip: frozenset[int] = frozenset()
-           ) -> Pose3DResult:
+           link_confidence: np.ndarray | None, limit_axes: np.ndarray | None = None,
+           skip: frozenset[int] = frozenset()) -> Pose3DResult:
     """One solve of :func:`solve_pose3d` without the depth orders at the indices in ``skip``.
 
     A solve that already dropped orders runs to convergence (no early stop on orders
@@ -403,7 +407,8 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
         if opts.bind_weight > 0 else None
     current, _ = start.start_pose(skeleton, setup.jmap, setup.frame, setup.order, embedding,
                                   bind, opts.toward_viewer, pinned, setup.facing,
-                                  opts.bind_turn, keep, ik_limits, opts.natural_bend)
+                                  opts.bind_turn, keep, ik_limits, opts.natural_bend,
+                                  limit_axes)
     timings["start"] = time.perf_counter() - t1
     jm = setup.jmap
     warnings: list[str] = []
@@ -429,7 +434,7 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
             break  # orders still unmet this late: solve_pose3d drops them and solves again
         G = twist.position_jacobian(jm, X, state)
         dof = rig_rows(skeleton, jm, current, state.frames[jm.bones], lock_rotation,
-                       ik_limits, pinned)
+                       ik_limits, pinned, limit_axes)
         problem = build_qp(setup.terms, constraints, dof, X.ravel(), G,
                            alpha=opts.alpha, kappa=setup.kappa, soften=soften,
                            rho=opts.soft_penalty)

@@ -177,7 +177,8 @@ def _within(rotvec: np.ndarray, limits: np.ndarray, tol: float = 1e-3) -> bool:
 def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                 embedding: Embedding2D, bind: Pose, signs: np.ndarray, fixed: np.ndarray,
                 ik_limits: np.ndarray | None = None, natural_bend: bool = True,
-                min_bend: float = np.radians(3.0), min_lift: float = 0.1) -> np.ndarray:
+                min_bend: float = np.radians(3.0), min_lift: float = 0.1,
+                limit_axes: np.ndarray | None = None) -> np.ndarray:
     """Depth sides of bones at a joint the rig restricts or bends (knees, elbows).
 
     A drawn bone's two depth sides bend its joint with its parent in opposite senses. With
@@ -203,6 +204,8 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         natural_bend: Use the rest bend where IK limits do not decide.
         min_bend: Smallest rest bend angle of a natural hinge, radians.
         min_lift: Smallest depth change over length of a decided bone.
+        limit_axes: The local axes ``ik_limits`` refer to, as columns, ``(n, 3, 3)`` (None:
+            the bones' own axes; see :func:`~.rig.rig_rows`).
 
     Returns:
         The sides, ``(m,)``.
@@ -235,9 +238,12 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                      for sign in (1.0, -1.0)]
             decided = False
             if ik_limits is not None and np.any(np.isfinite(ik_limits[bone])):
-                ok = [_within(log_map(skeleton.aim_local(bone, c, state,
-                                                         pose.rotations[bone])[None])[0],
-                              ik_limits[bone]) for c in cands]
+                rotvecs = log_map(np.stack([skeleton.aim_local(bone, c, state,
+                                                               pose.rotations[bone])
+                                            for c in cands]))
+                if limit_axes is not None:
+                    rotvecs = rotvecs @ limit_axes[bone]
+                ok = [_within(r, ik_limits[bone]) for r in rotvecs]
                 if ok[0] != ok[1]:
                     signs[k], decided = (1.0 if ok[0] else -1.0), True
             axis = np.cross(rest_dir[parent], rest_dir[bone])
@@ -261,7 +267,8 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                toward_viewer: bool = True, pinned: np.ndarray | None = None,
                facing: float = 1.0, bind_turn: float = np.radians(45.0),
                keep: np.ndarray | None = None, ik_limits: np.ndarray | None = None,
-               natural_bend: bool = False) -> tuple[Pose, np.ndarray]:
+               natural_bend: bool = False, limit_axes: np.ndarray | None = None
+               ) -> tuple[Pose, np.ndarray]:
     """The lifted start pose and the depth side of each solving bone.
 
     Args:
@@ -284,6 +291,7 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
             (:func:`hinge_signs`).
         natural_bend: Bones bent against their parents at rest bend the same way
             (:func:`hinge_signs`) where IK limits do not decide.
+        limit_axes: The local axes ``ik_limits`` refer to (:func:`hinge_signs`).
 
     Returns:
         ``(pose, signs)``: the start pose and the sides, ``(m,)``.
@@ -308,7 +316,7 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     signs = np.where(kept, facing * np.sign(bind_slope), default)
     if natural_bend or (ik_limits is not None and np.any(np.isfinite(ik_limits))):
         signs = hinge_signs(skeleton, jm, f, embedding, bind, signs, fixed, ik_limits,
-                            natural_bend)
+                            natural_bend, limit_axes=limit_axes)
     pose = lifted_pose(skeleton, jm, f, embedding, bind, signs, fixed)
     if not order:
         return pose, signs
