@@ -108,13 +108,10 @@ def _hinge_chain() -> Skeleton:
     return replace(sk, names=("b0", "b1", "b2", "b3", "thigh.L", "shin.L", "foot.L"))
 
 
-@pytest.mark.parametrize("limit", ["ik", "natural"])
-def test_the_rig_decides_the_side_of_a_bent_joint(limit):
-    sk = _hinge_chain()
-    s = solving_skeleton(sk)
-    cam = front_camera(ortho=True)
-    # Hip flexed 40 degrees towards the viewer, knee flexed 100 degrees the way it bends
-    # at rest: the shin goes 60 degrees away from the viewer, drawn at half its length.
+def _flexed_leg(sk: Skeleton) -> Pose:
+    """Hip (bone 4) flexed 40 degrees towards the viewer, knee (bone 5) 100 degrees the way
+    it bends at rest, both about the world x axis: the shin goes 60 degrees away from the
+    viewer, drawn at half its length."""
     pose = Pose.identity(sk.n_bones)
     for bone, angle in ((4, -40.0), (5, 100.0)):
         state = sk.forward(pose)
@@ -122,6 +119,15 @@ def test_the_rig_decides_the_side_of_a_bent_joint(limit):
         frame = state.frames[bone]
         pose = pose.with_rotations(np.array([bone]),
                                    (frame.T @ world @ frame @ pose.rotations[bone])[None])
+    return pose
+
+
+@pytest.mark.parametrize("limit", ["ik", "natural"])
+def test_the_rig_decides_the_side_of_a_bent_joint(limit):
+    sk = _hinge_chain()
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=True)
+    pose = _flexed_leg(sk)
     emb = project_embedding(sk, s, pose, cam)
     tj = posed_joints(s, sk, pose)
     knee, ankle = s.head_joint[5], s.tail_joint[5]
@@ -181,7 +187,6 @@ def test_natural_bend_holds_on_the_joint_skeleton_of_a_token_rig():
     """An imported rig (token bones, nothing connected) read as its joint skeleton bends
     its knee the rest pose's way, as the rig with tails does."""
     from gesture_pose.core.joint_skeleton import joint_skeleton, to_joint_pose
-    from tests.core.fixtures import frame_along
 
     sk = _hinge_chain()
     rng = np.random.default_rng(3)
@@ -196,13 +201,7 @@ def test_natural_bend_holds_on_the_joint_skeleton_of_a_token_rig():
     cam = front_camera(ortho=True)
     results = {}
     for name, skel in (("tails", sk), ("joints", joint.skeleton)):
-        pose = Pose.identity(skel.n_bones)
-        for bone, angle in ((4, -40.0), (5, 100.0)):
-            state = skel.forward(pose)
-            world = exp_map(np.array([np.radians(angle), 0.0, 0.0]))
-            frame = state.frames[bone]
-            pose = pose.with_rotations(np.array([bone]),
-                                       (frame.T @ world @ frame @ pose.rotations[bone])[None])
+        pose = _flexed_leg(skel)
         s = solving_skeleton(skel)
         res = solve_pose3d(skel, project_embedding(skel, s, pose, cam), cam,
                            to_joint_pose(Pose.identity(skel.n_bones), joint.frame_change)

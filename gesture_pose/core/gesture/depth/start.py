@@ -132,6 +132,25 @@ def near_bind_direction(drawn: np.ndarray, rest: np.ndarray, frame: ViewFrame,
     return cos >= np.cos(max_angle)
 
 
+def _drawn_link(skeleton: Skeleton, embedding: Embedding2D, frame: ViewFrame, k: int,
+                bone: int) -> tuple[np.ndarray, float]:
+    """Solving bone ``k``'s drawn 2D vector and the depth change its length leaves.
+
+    Returns:
+        ``(drawn (2,), depth)``: the drawn vector in view units (right, up) and
+        ``sqrt(l^2 - |drawn|^2)`` (0 for a bone drawn at or beyond its length).
+    """
+    s = embedding.solving
+    drawn = (embedding.joints2d[s.tail_joint[k]] - embedding.joints2d[s.head_joint[k]]) \
+        / frame.scale
+    return drawn, float(np.sqrt(max(skeleton.lengths[bone] ** 2 - drawn @ drawn, 0.0)))
+
+
+def _direction(frame: ViewFrame, drawn: np.ndarray, depth: float) -> np.ndarray:
+    """The 3D vector drawn as ``drawn`` (view units) with ``depth`` along the view."""
+    return drawn[0] * frame.right + drawn[1] * frame.up + depth * frame.forward
+
+
 def lifted_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                 embedding: Embedding2D, bind: Pose, signs: np.ndarray, fixed: np.ndarray
                 ) -> Pose:
@@ -149,17 +168,13 @@ def lifted_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     Returns:
         The lifted pose.
     """
-    s, f = embedding.solving, frame
     pose = bind
     for k, bone in enumerate(jmap.bones):
         if fixed[k]:
             continue
-        drawn = (embedding.joints2d[s.tail_joint[k]] - embedding.joints2d[s.head_joint[k]]) \
-            / f.scale
-        length = skeleton.lengths[bone]
-        depth = np.sqrt(max(length**2 - drawn @ drawn, 0.0)) * signs[k]
-        direction = drawn[0] * f.right + drawn[1] * f.up + depth * f.forward
-        if np.linalg.norm(direction) < 1e-9 * length:
+        drawn, depth = _drawn_link(skeleton, embedding, frame, k, bone)
+        direction = _direction(frame, drawn, depth * signs[k])
+        if np.linalg.norm(direction) < 1e-9 * skeleton.lengths[bone]:
             continue
         state = skeleton.forward(pose)
         rot = skeleton.aim_local(int(bone), direction, state, pose.rotations[bone])
@@ -210,7 +225,7 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     Returns:
         The sides, ``(m,)``.
     """
-    s, f = embedding.solving, frame
+    s = embedding.solving
     signs = np.asarray(signs, float).copy()
     solving = set(int(b) for b in jmap.bones)
     rest_dir = skeleton.rest_tails - skeleton.rest_heads
@@ -227,15 +242,12 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         if fixed[k]:
             continue
         bone = int(bone)
-        drawn = (embedding.joints2d[s.tail_joint[k]] - embedding.joints2d[s.head_joint[k]]) \
-            / f.scale
+        drawn, depth = _drawn_link(skeleton, embedding, frame, k, bone)
         length = skeleton.lengths[bone]
-        depth = np.sqrt(max(length**2 - drawn @ drawn, 0.0))
         state = skeleton.forward(pose)
         parent = int(skeleton.parents[bone])
         if depth >= min_lift * length and parent in solving:
-            cands = [drawn[0] * f.right + drawn[1] * f.up + sign * depth * f.forward
-                     for sign in (1.0, -1.0)]
+            cands = [_direction(frame, drawn, sign * depth) for sign in (1.0, -1.0)]
             decided = False
             if ik_limits is not None and np.any(np.isfinite(ik_limits[bone])):
                 rotvecs = log_map(np.stack([skeleton.aim_local(bone, c, state,
@@ -254,7 +266,7 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                 score = [float(np.cross(u, c) @ (world @ axis)) for c in cands]
                 if score[0] * score[1] < 0:
                     signs[k] = 1.0 if score[0] > 0 else -1.0
-        direction = drawn[0] * f.right + drawn[1] * f.up + signs[k] * depth * f.forward
+        direction = _direction(frame, drawn, signs[k] * depth)
         if np.linalg.norm(direction) < 1e-9 * length:
             continue
         rot = skeleton.aim_local(bone, direction, state, pose.rotations[bone])
