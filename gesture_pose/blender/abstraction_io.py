@@ -24,7 +24,8 @@ from scipy.spatial import cKDTree
 from ..core.abstraction.curves import CurveLayout
 from ..core.abstraction.parameters import ParameterSpace, RigPose
 from ..core.exceptions import InputError
-from ..core.skeleton import Skeleton
+from ..core.joint_skeleton import from_joint_pose
+from ..core.skeleton import Pose, Skeleton
 from .read_armature import ArmatureData
 from .read_strokes import chain_edges, drawing_arrays
 from .write_pose import set_rotation
@@ -265,14 +266,14 @@ def set_rig_pose(arm_obj, names: tuple[str, ...], pose: RigPose, bones: np.ndarr
     skeleton, the pose is conjugated back to the real bones' frames first
     (``Q = C Q' C^T``, ``t = C t'``; see ``core/joint_skeleton.py``).
     """
+    real = Pose(pose.rotations, pose.translations)
+    if frame_change is not None:
+        real = from_joint_pose(real, frame_change)
     for b in bones:
         pb = arm_obj.pose.bones[names[b]]
-        rot, trans = pose.rotations[b], pose.translations[b]
-        if frame_change is not None:
-            rot, trans = frame_change[b] @ rot @ frame_change[b].T, frame_change[b] @ trans
-        set_rotation(pb, rot)
+        set_rotation(pb, real.rotations[b])
         pb.scale = (float(pose.scales[b]),) * 3
-        pb.location = trans / object_scale
+        pb.location = real.translations[b] / object_scale
 
 
 class BlenderRigEvaluator:

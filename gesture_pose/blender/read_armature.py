@@ -66,11 +66,9 @@ class ArmatureData:
             (``R'_i = R_i C_i``), ``(n, 3, 3)``; None when the bones are read as they are.
             ``pose`` is then in the joint skeleton's frames (``Q' = C^T Q C``).
         warnings: Notes about the read (e.g. rotation locks that could not be kept).
-        limit_axes: For a rig read as its joint skeleton, the real bones' local axes in
-            the skeleton's frames (columns ``C_i^T e_k``), ``(n, 3, 3)``: the rig's own
-            locks and limits (:meth:`axis_settings`) are about them. None otherwise.
-        rig_lock_rotation: The rig's rotation locks on its own axes (with ``limit_axes``).
-        rig_ik_limits: The rig's IK limits on its own axes (with ``limit_axes``).
+        rig_lock_rotation: For a rig read as its joint skeleton, its rotation locks on the
+            real bones' axes (:meth:`axis_settings`); None otherwise.
+        rig_ik_limits: Likewise its IK limits on the real bones' axes.
     """
 
     object_name: str
@@ -85,7 +83,6 @@ class ArmatureData:
     matrix_world: np.ndarray
     frame_change: np.ndarray | None = None
     warnings: tuple[str, ...] = ()
-    limit_axes: np.ndarray | None = None
     rig_lock_rotation: np.ndarray | None = None
     rig_ik_limits: np.ndarray | None = None
 
@@ -93,14 +90,16 @@ class ArmatureData:
         """Locks and IK limits with the axes they are about, for solvers that take axes.
 
         Returns:
-            ``(lock (n, 3), ik_limits (n, 3, 2), axes (n, 3, 3) or None)``: the rig's own
-            settings about its real bones' axes on an imported rig read as its joint
-            skeleton (every bone's, also those ``lock_rotation`` drops), else
-            ``lock_rotation`` and ``ik_limits`` on the bones' own axes.
+            ``(lock (n, 3), ik_limits (n, 3, 2), axes (n, 3, 3) or None)``: on an imported
+            rig read as its joint skeleton, the rig's own settings (every bone's, also
+            those ``lock_rotation`` drops) with the real bones' axes in the skeleton's
+            frames (columns ``C_i^T e_k``); else ``lock_rotation`` and ``ik_limits`` on the
+            bones' own axes.
         """
-        if self.limit_axes is None:
+        if self.frame_change is None:
             return self.lock_rotation, self.ik_limits, None
-        return self.rig_lock_rotation, self.rig_ik_limits, self.limit_axes
+        return (self.rig_lock_rotation, self.rig_ik_limits,
+                np.swapaxes(self.frame_change, 1, 2))
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -259,12 +258,11 @@ def read_armature(arm_obj: bpy.types.Object, joints: bool = True) -> ArmatureDat
         pinned |= pinned_coll
     lock = _bulk(pose_bones, "lock_rotation", 3, bool)[pb_order]
     limits = _ik_limits(pose_bones)[pb_order]
-    change, warnings, axes, rig_lock, rig_limits = None, (), None, None, None
+    change, warnings, rig_lock, rig_limits = None, (), None, None
     if joints and has_token_bones(skeleton):
         rig_lock, rig_limits = lock, limits
         skeleton, pose, change, lock, limits, warnings = _as_joints(arm_obj, skeleton, pose,
                                                                     lock, limits)
-        axes = np.swapaxes(change, 1, 2)  # columns C^T e_k
     return ArmatureData(
         object_name=arm_obj.name,
         skeleton=skeleton,
@@ -278,7 +276,6 @@ def read_armature(arm_obj: bpy.types.Object, joints: bool = True) -> ArmatureDat
         matrix_world=world,
         frame_change=change,
         warnings=warnings,
-        limit_axes=axes,
         rig_lock_rotation=rig_lock,
         rig_ik_limits=rig_limits,
     )

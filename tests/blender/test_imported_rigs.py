@@ -321,6 +321,6 @@ def test_pose_keeps_ik_limits_about_the_real_bones_axes(registered, monkeypatch)
         setattr(pb, f"use_ik_limit_{ax}", True)
         setattr(pb, f"ik_min_{ax}", -0.1)
         setattr(pb, f"ik_max_{ax}", 0.1)
-    assert read_armature(token).limit_axes is not None
+    assert read_armature(token).axis_settings()[2] is not None
     pose_drawing.pose_from_drawing(token, sketch, camera, insert_keys=False, show_fit=False)
     assert np.abs(real_rotvec()).max() <= 0.1 + 2e-3
