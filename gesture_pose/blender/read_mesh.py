@@ -131,10 +131,16 @@ def rest_skin(arm_obj: bpy.types.Object, skeleton: Skeleton
     objects = meshes_of(arm_obj)
     if not objects:
         return None
-    verts = np.concatenate([_world(_positions(o.data), o.matrix_world) for o in objects])
-    w = np.concatenate([_weights(o, skeleton) for o in objects])
+    parts = [_object_skin(o, skeleton) for o in objects]
+    return np.concatenate([v for v, _ in parts]), np.concatenate([w for _, w in parts])
+
+
+def _object_skin(obj, skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
+    """One mesh object's rest vertices in world space and normalized bone weights."""
+    w = _weights(obj, skeleton)
     total = w.sum(axis=1, keepdims=True)
-    return verts, np.divide(w, total, out=np.zeros_like(w), where=total > 0)
+    return (_world(_positions(obj.data), obj.matrix_world),
+            np.divide(w, total, out=np.zeros_like(w), where=total > 0))
 
 
 def read_skinned_meshes(arm_obj: bpy.types.Object, skeleton: Skeleton,
@@ -163,10 +169,7 @@ def read_skinned_meshes(arm_obj: bpy.types.Object, skeleton: Skeleton,
     rest, deformed, tris, weights, warnings = [], [], [], [], []
     offset = 0
     for obj in objects:
-        r = _world(_positions(obj.data), obj.matrix_world)
-        w = _weights(obj, skeleton)
-        total = w.sum(axis=1, keepdims=True)
-        w = np.divide(w, total, out=np.zeros_like(w), where=total > 0)
+        r, w = _object_skin(obj, skeleton)
         evaluated = obj.evaluated_get(depsgraph)
         mesh = evaluated.to_mesh()
         try:
