@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..rotations import exp_map, log_map, rotation_between
-from .kinematics import PoseModel
+from .kinematics import N_ROOT_GENES, PoseModel
 from .objective import EnvPin, LimbPin, StickObjective
 from .refine import place_joints
 
@@ -87,11 +87,8 @@ def _lie_on_chain(objective: StickObjective, x: np.ndarray, pin: EnvPin) -> EnvP
     sk = model.skeleton
     heads, tails, _ = model.forward(x[None])
     n = pin.normal
-    parent = sk.parents[int(model.figure.joint_bones[pin.joint])]
-    if parent >= 0:
-        d = tails[0, parent] - heads[0, parent]
-        if abs(d @ n) > 0.5 * np.linalg.norm(d):  # a shin standing on its foot
-            return pin
+    if _stands_upright(model, heads, tails, pin)[0]:  # a shin standing on its foot
+        return pin
     now = _clearance(objective, heads, tails, pin.joint, n)[0]
     rest = _clearance(objective, sk.rest_heads[None], sk.rest_tails[None], pin.joint,
                       model.figure.up)[0]
@@ -287,7 +284,7 @@ def _reach_with_body(objective: StickObjective, x: np.ndarray, bounds: np.ndarra
     model = objective.model
     fig = model.figure
     joints = np.array([pin.joint] + [p.joint for p in env_pins])
-    more = np.unique(np.concatenate([genes, np.arange(6)] +
+    more = np.unique(np.concatenate([genes, np.arange(N_ROOT_GENES)] +
                                     [_chain_genes(model, p.joint) for p in env_pins]))
     a, b = pin.limb
     for _ in range(rounds):
