@@ -187,23 +187,28 @@ def _chain_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
                 d, pa, conf.radii[[p]], conf.group[[p]], conf.side[[p]], pb,
                 conf.radii[[k]], conf.group[[k]], conf.side[[k]], problem.link_length[k], prm,
                 blocked=problem.bone_blocked(k), shortest=problem.shortest(k))
-        total += np.diagonal(table) if len(pa) == t else table[0]
+        total += _per_trial(table, t)
     top = int(chain[0])
     for k in [top, *np.flatnonzero(par == top)]:
         if not problem.has_triplet(k):
             continue
         a, b = par[par[k]], par[k]
-        pa, pb, pc = at(a), at(b), at(k)
-        ga, gb, gc = conf.group[[a]], conf.group[[b]], conf.group[[k]]
-        shared = (ga == gb) & (gb == gc) & (gc >= 0)
-        d1, d2 = pb - pa, pc - pb
-        n1 = np.linalg.norm(d1, axis=1)
-        n2 = np.linalg.norm(d2, axis=1)
-        cos = np.einsum("td,td->t", np.broadcast_to(d1, (t, 2)), np.broadcast_to(d2, (t, 2)))
-        ang = np.arccos(np.clip(cos / np.maximum(n1 * n2, 1e-9), -1.0, 1.0))
-        sigma = prm.sigma_angle_shared if shared[0] else prm.sigma_angle
-        total += 1.0 - np.exp(-((ang - problem.rest_angle[k]) ** 2) / (2.0 * sigma**2))
+        ga, gb, gc = conf.group[a], conf.group[b], conf.group[k]
+        shared = bool(ga == gb == gc and gc >= 0)
+        table = triplet_cost(at(a), at(b), at(k), np.array(shared),
+                             float(problem.rest_angle[k]), prm)
+        total += _per_trial(table, t)
     return total
+
+
+def _per_trial(table: np.ndarray, t: int) -> np.ndarray:
+    """The entries of a cost table where every moved joint takes the same trial, ``(t,)``.
+
+    Each axis of ``table`` has length ``t`` (a joint moved by the trials) or 1 (a joint
+    that stays).
+    """
+    index = tuple(np.arange(t) if n == t else np.zeros(t, int) for n in table.shape)
+    return table[index]
 
 
 def _same_side(problem: MatchProblem, old: np.ndarray, trial: np.ndarray,
