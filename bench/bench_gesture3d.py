@@ -47,19 +47,16 @@ def metrics(solving, skeleton, truth_pose, joints3d: np.ndarray, camera
 
     See the module docstring for the definitions.
     """
-    from gesture_pose.core.gesture.depth.evaluation import joints_of, pose_error
+    from gesture_pose.core.gesture.depth.evaluation import (
+        depth_sign_rate,
+        joints_of,
+        pose_error,
+    )
 
     truth = joints_of(solving, skeleton, truth_pose)
     err = pose_error(truth, joints3d, skeleton, camera)
-    child = np.flatnonzero(solving.joint_parent >= 0)
-    par = solving.joint_parent[child]
-    length = np.linalg.norm(solving.rest_joints[child] - solving.rest_joints[par], axis=1)
-    d_truth = camera.forward @ (truth[child] - truth[par]).T / length
-    d_got = camera.forward @ (joints3d[child] - joints3d[par]).T / length
-    clear = np.abs(d_truth) > 0.2
-    signs = (float(np.mean(np.sign(d_got[clear]) * (np.abs(d_got[clear]) > 0.1)
-                           == np.sign(d_truth[clear]))) if clear.any() else float("nan"))
-    return err.mean_error, err.depth_order, signs
+    return (err.mean_error, err.depth_order,
+            depth_sign_rate(solving, truth, joints3d, camera))
 
 
 def order_agreement(result, solving, skeleton, truth_pose, camera) -> tuple[int, int]:

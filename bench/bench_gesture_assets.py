@@ -34,31 +34,6 @@ HEADERS = ["frame", "view", "joints", "2D error %h", "3D error %h", "bind pose %
 VIEWS = {"front": (0.0, 1.0, 0.0), "3/4": (0.6, 1.0, 0.15)}
 
 
-def depth_signs(solving, truth: np.ndarray, got: np.ndarray, camera) -> float:
-    """Share of clearly foreshortened links whose depth change the result gets right.
-
-    Args:
-        solving: The solving skeleton.
-        truth: True joints, ``(J, 3)``.
-        got: Result joints, ``(J, 3)``.
-        camera: The view.
-
-    Returns:
-        The rate in ``[0, 1]``, NaN without such links.
-    """
-    child = np.flatnonzero(solving.joint_parent >= 0)
-    par = solving.joint_parent[child]
-    length = np.linalg.norm(solving.rest_joints[child] - solving.rest_joints[par], axis=1)
-    length = np.maximum(length, 1e-9)
-    d_truth = camera.forward @ (truth[child] - truth[par]).T / length
-    d_got = camera.forward @ (got[child] - got[par]).T / length
-    clear = np.abs(d_truth) > 0.2
-    if not clear.any():
-        return float("nan")
-    return float(np.mean(np.sign(d_got[clear]) * (np.abs(d_got[clear]) > 0.1)
-                         == np.sign(d_truth[clear])))
-
-
 def _drawings(scene, arm, camera, frames) -> list:
     """Truth and traced contours per frame: ``[(frame, ArmatureData, TracedContours)]``."""
     import bpy
@@ -84,7 +59,11 @@ def _pose_row(arm, camera, view: str, k: int, truth, traced) -> list:
     from gesture_pose.blender.operators.fit_drawing import bind_pose
     from gesture_pose.blender.operators.pose_drawing import pose_from_drawing
     from gesture_pose.blender.read_armature import read_armature
-    from gesture_pose.core.gesture.depth.evaluation import joints_of, pose_error
+    from gesture_pose.core.gesture.depth.evaluation import (
+        depth_sign_rate,
+        joints_of,
+        pose_error,
+    )
     from sample_scenes import builders
 
     builders.reset_pose(arm)
@@ -103,7 +82,7 @@ def _pose_row(arm, camera, view: str, k: int, truth, traced) -> list:
     err = pose_error(true3d, got3d, sk, camera).mean_error
     still = pose_error(true3d, joints_of(solving, sk, bind_pose(bind)), sk, camera).mean_error
     return [k, view, solving.n_joints, float(100.0 * fit2d / np.ptp(true2d[:, 1])), err, still,
-            depth_signs(solving, true3d, got3d, camera), 100.0 * rep.embedding.coverage,
+            depth_sign_rate(solving, true3d, got3d, camera), 100.0 * rep.embedding.coverage,
             rep.seconds]
 
 

@@ -74,3 +74,35 @@ def pose_error(truth: np.ndarray, solved: np.ndarray, skeleton: Skeleton, camera
     rate = (float(np.mean(np.sign(gap_t[pairs]) == np.sign(gap_s[pairs]))) if pairs.any()
             else float("nan"))
     return PoseError(float(dist.mean()), float(dist.max()), rate, height)
+
+
+def depth_sign_rate(solving: SolvingSkeleton, truth: np.ndarray, got: np.ndarray,
+                    camera: Camera, clear: float = 0.2, moved: float = 0.1) -> float:
+    """Share of the clearly turned links whose depth change the result gets right.
+
+    A link counts when its true depth change along the view (tail minus head, over its
+    rest length) exceeds ``clear``; the result gets it right when it turns the link the
+    same way by more than ``moved`` (a link left in the view plane counts as wrong).
+
+    Args:
+        solving: The solving skeleton.
+        truth: True joints, world units, ``(J, 3)``.
+        got: Result joints, world units, ``(J, 3)``.
+        camera: The view.
+        clear: Smallest true depth change of a counted link, fraction of its length.
+        moved: Smallest depth change of the result's link, fraction of its length.
+
+    Returns:
+        The rate in ``[0, 1]``, NaN without such links.
+    """
+    child = np.flatnonzero(solving.joint_parent >= 0)
+    par = solving.joint_parent[child]
+    length = np.maximum(np.linalg.norm(solving.rest_joints[child] - solving.rest_joints[par],
+                                       axis=1), 1e-9)
+    d_truth = camera.forward @ (truth[child] - truth[par]).T / length
+    d_got = camera.forward @ (got[child] - got[par]).T / length
+    sel = np.abs(d_truth) > clear
+    if not sel.any():
+        return float("nan")
+    return float(np.mean(np.sign(d_got[sel]) * (np.abs(d_got[sel]) > moved)
+                         == np.sign(d_truth[sel])))
