@@ -160,27 +160,70 @@ def test_depth_orders_the_solve_cannot_meet_are_dropped():
     sk = tree_skeleton()
     s = solving_skeleton(sk)
     cam = front_camera(ortho=True)
-    state = sk.forward(Pose.identity(6))
+    drawn = _raised_left_arm(sk)  # not the bind pose: its orders are read (see below)
+    state = sk.forward(drawn)
     mid = {k: cam.project(0.5 * (state.heads[k:k + 1] + state.tails[k:k + 1]))[0]
            for k in range(6)}
     # The drawing says both: the left forearm in front of the left upper arm, and behind.
     cycle = tuple(Occlusion(front_bone=f, back_bone=b, point2d=mid[3], front_radius=6.0,
                             back_radius=6.0) for f, b in ((2, 3), (3, 2)))
-    emb = project_embedding(sk, s, Pose.identity(6), cam, occlusions=cycle)
+    emb = project_embedding(sk, s, drawn, cam, occlusions=cycle)
     forced = solve_pose3d(sk, emb, cam, options=DepthOptions(drop_unmet_orders=False))
     res = solve_pose3d(sk, emb, cam)
+    assert len(forced.ordering) == 2
     assert not np.all(forced.ordering_satisfied)
     kept = {c.label for c in res.ordering}
     dropped = {c.label for c in forced.ordering} - kept
     assert dropped and any("contradicted the drawing" in w for w in res.warnings)
     assert np.all(res.ordering_satisfied)
     assert any("not met" in w for w in forced.warnings)
-    # Without them the drawing (the bind pose seen from the front) is met. (On the
+    # Without them the drawing (the raised arm in the view plane) is met. (On the
     # benchmark's quadruped drawn from the side, two orders read from the contours put a
     # front leg both behind and in front of the other: forcing them swung the legs 60
     # degrees out of the view plane, 4.9% of the height off against 1.3% without.)
-    tj = posed_joints(s, sk, Pose.identity(6))
+    tj = posed_joints(s, sk, drawn)
     assert np.linalg.norm(res.joints3d - tj, axis=1).max() < 1e-3
+
+
+def test_orders_between_parts_drawn_as_at_bind_keep_the_bind_order():
+    from gesture_pose.core.gesture.depth.ordering import drawn_as_bind, ordering_constraints
+    from gesture_pose.core.gesture.types import Occlusion
+
+    sk = _turned_tree()  # the right forearm points half towards the viewer at bind
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=True)
+    # A misread: the right forearm's tip behind the neck (the bind pose has it 0.3 in
+    # front of the neck's plane).
+    point = cam.project(np.array([[-0.9, 0.0, 1.05]]))[0]
+    occ = (Occlusion(front_bone=1, back_bone=5, point2d=point, front_radius=8.0,
+                     back_radius=8.0),)
+    a = s.joint_parent[s.joint_parent >= 0]
+    b = np.flatnonzero(s.joint_parent >= 0)
+    frame = energies.view_frame(cam, s.rest_joints.mean(axis=0))
+    links = s.rest_joints[b] - s.rest_joints[a]
+    for pose in (Pose.identity(6), _raised_left_arm(sk)):
+        emb = project_embedding(sk, s, pose, cam, occlusions=occ)
+        agreement = np.ones(s.n_joints)
+        agreement[b] = energies.bind_agreement(emb.joints2d, a, b, links, frame, 1.5, 0.025)
+        order = ordering_constraints(emb, frame.scale)
+        # The path between the neck and the right forearm (root, right arm) is drawn as
+        # at bind either way: the raised left arm is not on it.
+        assert drawn_as_bind(order, s.joint_parent, agreement).tolist() == [True]
+        res = solve_pose3d(sk, emb, cam)
+        assert res.ordering == ()
+        tj = posed_joints(s, sk, pose)
+        assert float(np.abs((res.joints3d - tj) @ FORWARD).max()) < 0.01
+        # With E_b off the order is enforced: the forearm leaves its bind depth.
+        forced = solve_pose3d(sk, emb, cam, options=DepthOptions(bind_weight=0.0))
+        assert len(forced.ordering) == 1 and np.all(forced.ordering_satisfied)
+        assert float(np.abs((forced.joints3d - tj) @ FORWARD).max()) > 0.05
+    # A change drawn on the path (the right upper arm raised) reads the order again.
+    raised = Pose.identity(6)
+    rot = sk.aim_local(4, np.array([-0.5, 0.0, np.sqrt(3.0) / 2.0]), sk.forward(raised),
+                       raised.rotations[4])
+    raised = raised.with_rotations(np.array([4]), rot[None])
+    res = solve_pose3d(sk, project_embedding(sk, s, raised, cam, occlusions=occ), cam)
+    assert len(res.ordering) == 1 and np.all(res.ordering_satisfied)
 
 
 def test_natural_bend_holds_on_the_joint_skeleton_of_a_token_rig():

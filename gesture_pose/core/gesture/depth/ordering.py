@@ -165,6 +165,50 @@ def ordering_rows(constraints: list[OrderingConstraint], forward: np.ndarray,
                             tuple(c.label for c in constraints))
 
 
+def _ancestors(joint_parent: np.ndarray, j: int) -> list[int]:
+    """Joint ``j`` and its ancestors up to the root, nearest first."""
+    out = [int(j)]
+    while joint_parent[out[-1]] >= 0:
+        out.append(int(joint_parent[out[-1]]))
+    return out
+
+
+def drawn_as_bind(constraints: list[OrderingConstraint], joint_parent: np.ndarray,
+                  link_agreement: np.ndarray, keep: float = 0.5) -> np.ndarray:
+    """Whether each constraint joins parts drawn, with everything between them, as at bind.
+
+    The relative depth of two parts depends on the links of the joint-tree path between
+    them. When every one of those links (and the parts' own) is drawn as the bind pose
+    shows it, the drawing repeats the bind pose there and the bind pose's depth order is
+    the best guess (E_b keeps those links at their bind vectors): an order read from the
+    contours that contradicts it comes from misattributed contour pieces (on the
+    benchmark's traced drawings: a neck read behind the spine below it, a quadruped's
+    spine behind its own unchanged hind leg).
+
+    Args:
+        constraints: Ordering constraints.
+        joint_parent: Parent joint of each joint, -1 for the root, ``(J,)``.
+        link_agreement: Agreement of the link ending at each joint with its bind
+            projection (:func:`.energies.bind_agreement`; anything for the root), ``(J,)``.
+        keep: Smallest agreement of a link drawn as at bind.
+
+    Returns:
+        Shape ``(k,)`` bool.
+    """
+    parent = np.asarray(joint_parent, int)
+    agree = np.asarray(link_agreement, float) >= keep
+    out = np.zeros(len(constraints), bool)
+    for i, c in enumerate(constraints):
+        joints = {int(j) for j in (*c.back, *c.front)}
+        chains = [_ancestors(parent, j) for j in joints]
+        common = set.intersection(*(set(ch) for ch in chains))
+        # Links below the deepest common ancestor on every chain (child joints).
+        links = {j for ch in chains for j in ch[:next(k for k, a in enumerate(ch)
+                                                        if a in common)]}
+        out[i] = all(agree[j] for j in links)
+    return out
+
+
 def violations(constraints: list[OrderingConstraint], depths: np.ndarray) -> np.ndarray:
     """Amount by which each constraint is violated (0 when satisfied), world units."""
     return np.array([max(c.margin - c.gap(depths), 0.0) for c in constraints])

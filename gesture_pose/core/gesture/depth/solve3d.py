@@ -100,6 +100,9 @@ class DepthOptions:
         natural_bend: Start bones bent against their parents at rest (knees, elbows) on
             the depth side that bends them the same way (ours; IK limits on the bone
             decide first).
+        bind_orders: Leave out the depth orders between parts drawn, with the links between
+            them, as the bind pose shows them (ours; with E_b on): the bind pose's order
+            holds there.
         drop_unmet_orders: When the solve leaves depth-order constraints unmet, solve
             again without them (ours; they contradict the drawing or each other).
         order_patience: SQP iterations after which depth orders still unmet count as
@@ -134,6 +137,7 @@ class DepthOptions:
     bind_sigma: float = 0.025
     bind_keep: float = 0.5
     natural_bend: bool = True
+    bind_orders: bool = True
     drop_unmet_orders: bool = True
     order_patience: int = 25
 
@@ -288,6 +292,19 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
                                           opts.junction_tolerance, opts.junction_interior,
                                           opts.occlusion_min_parts, opts.occlusion_overlap,
                                           opts.t_junctions)
+    if opts.bind_weight > 0 and opts.bind_orders and order:
+        # An order between parts drawn, with everything between them, as at bind, that the
+        # bind pose has the other way round would move what the drawing leaves alone: the
+        # bind pose's order is the better guess there. (Parts the bind pose has at one
+        # depth, tubes interpenetrating, keep the drawing's order.)
+        joint_agreement = np.ones(n_j)
+        joint_agreement[b] = agreement
+        settled = ordering.drawn_as_bind(order, s.joint_parent, joint_agreement,
+                                         opts.bind_keep)
+        bind_depths = frame.depth(X_rest)
+        tol = opts.tolerance * float(np.mean(lengths))
+        order = [c for c, done in zip(order, settled, strict=True)
+                 if not (done and c.gap(bind_depths) < -tol)]
     order = [c for k, c in enumerate(order) if k not in skip]
     if order:
         rows = ordering.ordering_rows(order, frame.forward, n_j)
