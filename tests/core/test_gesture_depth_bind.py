@@ -226,6 +226,30 @@ def test_orders_between_parts_drawn_as_at_bind_keep_the_bind_order():
     assert len(res.ordering) == 1 and np.all(res.ordering_satisfied)
 
 
+def test_an_order_the_bind_pose_meets_asks_no_more_than_its_gap_of_parts_drawn_as_at_bind():
+    sk = _turned_tree()
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=True)
+    # The right forearm's tip in front of the neck, as at bind, but with tubes so thick
+    # (100 px, 0.375 units) that Eq. 8's margin (0.375: the point is 0.9 from the neck's
+    # axis, on the forearm's) exceeds the bind pose's gap there (0.225).
+    from gesture_pose.core.gesture.types import Occlusion
+
+    point = cam.project(np.array([[-0.9, 0.0, 1.05]]))[0]
+    occ = (Occlusion(front_bone=5, back_bone=1, point2d=point, front_radius=100.0,
+                     back_radius=100.0),)
+    emb = project_embedding(sk, s, Pose.identity(6), cam, occlusions=occ)
+    forced = solve_pose3d(sk, emb, cam, options=DepthOptions(bind_weight=0.0))
+    res = solve_pose3d(sk, emb, cam)
+    tj = posed_joints(s, sk, Pose.identity(6))
+    bind_gap = res.ordering[0].gap(cam.depth(tj))
+    assert 0.0 < bind_gap < forced.ordering[0].margin - 0.1
+    assert res.ordering[0].margin == pytest.approx(bind_gap)
+    assert np.all(res.ordering_satisfied)
+    assert float(np.abs((res.joints3d - tj) @ FORWARD).max()) < 0.01
+    assert float(np.abs((forced.joints3d - tj) @ FORWARD).max()) > 0.05
+
+
 def test_natural_bend_holds_on_the_joint_skeleton_of_a_token_rig():
     """An imported rig (token bones, nothing connected) read as its joint skeleton bends
     its knee the rest pose's way, as the rig with tails does."""

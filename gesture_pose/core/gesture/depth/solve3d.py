@@ -100,9 +100,10 @@ class DepthOptions:
         natural_bend: Start bones bent against their parents at rest (knees, elbows) on
             the depth side that bends them the same way (ours; IK limits on the bone
             decide first).
-        bind_orders: Leave out the depth orders between parts drawn, with the links between
-            them, as the bind pose shows them (ours; with E_b on): the bind pose's order
-            holds there.
+        bind_orders: Between parts drawn, with the links between them, as the bind pose
+            shows them (ours; with E_b on), a depth order the bind pose has the other way
+            round is left out and one it meets asks for no more than the bind pose's gap:
+            the bind pose's depths hold there.
         drop_unmet_orders: When the solve leaves depth-order constraints unmet, solve
             again without them (ours; they contradict the drawing or each other).
         order_patience: SQP iterations after which depth orders still unmet count as
@@ -295,16 +296,24 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
     if opts.bind_weight > 0 and opts.bind_orders and order:
         # An order between parts drawn, with everything between them, as at bind, that the
         # bind pose has the other way round would move what the drawing leaves alone: the
-        # bind pose's order is the better guess there. (Parts the bind pose has at one
-        # depth, tubes interpenetrating, keep the drawing's order.)
+        # bind pose's order is the better guess there. One the bind pose meets asks for no
+        # more than its gap (Eq. 8's tubes are thicker than the body where an upper arm
+        # meets the chest). Parts the bind pose has at one depth (tubes interpenetrating)
+        # keep the drawing's order.
         joint_agreement = np.ones(n_j)
         joint_agreement[b] = agreement
         settled = ordering.drawn_as_bind(order, s.joint_parent, joint_agreement,
                                          opts.bind_keep)
         bind_depths = frame.depth(X_rest)
         tol = opts.tolerance * float(np.mean(lengths))
-        order = [c for c, done in zip(order, settled, strict=True)
-                 if not (done and c.gap(bind_depths) < -tol)]
+        kept = []
+        for c, done in zip(order, settled, strict=True):
+            gap = c.gap(bind_depths)
+            if not done or abs(gap) <= tol:
+                kept.append(c)
+            elif gap > tol:
+                kept.append(replace(c, margin=min(c.margin, gap)))
+        order = kept
     order = [c for k, c in enumerate(order) if k not in skip]
     if order:
         rows = ordering.ordering_rows(order, frame.forward, n_j)
