@@ -277,3 +277,33 @@ def test_natural_bend_holds_on_the_joint_skeleton_of_a_token_rig():
         results[name] = float((res.joints3d[ankle] - res.joints3d[knee]) @ FORWARD)
     assert results["tails"] > 0.4
     assert results["joints"] == pytest.approx(results["tails"], abs=0.05)
+
+
+def test_a_limb_drawn_moved_keeps_the_start_side_against_its_bind_depth():
+    """A forearm that points away from the viewer at bind, drawn turned 60 degrees down in
+    the image (a reach seen obliquely): the start puts it on the character's front, and
+    E_v's reference keeps it there instead of pulling it back to the bind side."""
+    base = _turned_tree()
+    tails = base.rest_tails.copy()
+    tails[5] = [-1.0, 0.3, 1.05]  # away from the viewer at bind (depth slope +0.6)
+    sk = replace(base, rest_tails=tails, rest_frames=np.stack(
+        [frame_along(t - h, 0.2 * i) for i, (h, t) in enumerate(zip(base.rest_heads, tails,
+                                                                     strict=True))]))
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=True)
+    truth = Pose.identity(6)
+    rot = sk.aim_local(5, np.array([-0.2, -0.3, -0.2 * np.sqrt(3.0)]), sk.forward(truth),
+                       truth.rotations[5])
+    truth = truth.with_rotations(np.array([5]), rot[None])
+    emb = project_embedding(sk, s, truth, cam)
+    tj = posed_joints(s, sk, truth)
+    tip, elbow = s.tail_joint[5], s.head_joint[5]
+    assert (tj[tip] - tj[elbow]) @ FORWARD == pytest.approx(-0.3)
+    depth = {}
+    for sides in (True, False):
+        X = solve_pose3d(sk, emb, cam, options=DepthOptions(start_sides=sides)).joints3d
+        depth[sides] = float((X[tip] - X[elbow]) @ FORWARD)
+    # Measured: -0.295 with the start's side, +0.295 with the bind pose's signed depth
+    # change as E_v's reference (pulled back across the view plane, mirrored).
+    assert depth[True] == pytest.approx(-0.3, abs=0.02)
+    assert depth[False] > 0.2

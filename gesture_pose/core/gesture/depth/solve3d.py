@@ -100,6 +100,9 @@ class DepthOptions:
         natural_bend: Start bones bent against their parents at rest (knees, elbows) on
             the depth side that bends them the same way (ours; IK limits on the bone
             decide first).
+        start_sides: E_v's reference for the bones drawn unlike the bind pose (agreement
+            below ``bind_keep``) is the bind pose's depth change in size only, on the
+            start's depth side (ours; :func:`_sided_reference`).
         bind_orders: Between parts drawn, with the links between them, as the bind pose
             shows them (ours; with E_b on), a depth order the bind pose has the other way
             round is left out and one it meets asks for no more than the bind pose's gap:
@@ -138,6 +141,7 @@ class DepthOptions:
     bind_sigma: float = 0.025
     bind_keep: float = 0.5
     natural_bend: bool = True
+    start_sides: bool = True
     bind_orders: bool = True
     drop_unmet_orders: bool = True
     order_patience: int = 25
@@ -328,6 +332,39 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
     return setup, X_rest, contacts, names
 
 
+def _sided_reference(setup: _Setup, signs: np.ndarray, tails: np.ndarray,
+                     moved: np.ndarray) -> _Setup:
+    """E_v measured, for the bones drawn unlike the bind pose, on the start's depth side.
+
+    E_v's reference is each link's bind depth change ``e`` (ours, see
+    :func:`.energies.foreshortening_term`). For a bone the drawing shows moved, the size of
+    ``e`` still says how much such a link leaves the view plane at this view, but its sign
+    is the bind pose's, which the start has decided anew (bind side, the rig, the front,
+    the depth orders: :func:`.start.start_pose`). Those links get ``s |e|`` with ``s`` the
+    start's side; the others keep ``e``.
+
+    Args:
+        setup: The solve's setup (its E_v term is replaced).
+        signs: The start's depth side of every solving bone, ``(m,)``.
+        tails: Tail joint of every solving bone, ``(m,)``.
+        moved: Bones drawn unlike the bind pose (lifted by the start), ``(m,)`` bool.
+
+    Returns:
+        The setup with the new E_v term.
+    """
+    link_of = np.full(setup.jmap.n_joints, -1)
+    link_of[setup.links[1]] = np.arange(len(setup.links[1]))
+    links = link_of[tails[moved]]
+    terms = []
+    for term in setup.terms:
+        if term.name == "foreshortening":
+            target = term.target.copy()
+            target[links] = np.asarray(signs, float)[moved] * np.abs(target[links])
+            term = replace(term, target=target)
+        terms.append(term)
+    return replace(setup, terms=terms)
+
+
 def _violation(constraints: list[LinearConstraint], X: np.ndarray) -> float:
     """Summed violation of the joint-space constraints at ``X``, world units."""
     return float(sum(np.sum(c.violation(X)) for c in constraints))
@@ -431,10 +468,13 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
     link_agreement[setup.links[1]] = setup.agreement
     keep = link_agreement[np.asarray(embedding.solving.tail_joint)] >= opts.bind_keep \
         if opts.bind_weight > 0 else None
-    current, _ = start.start_pose(skeleton, setup.jmap, setup.frame, setup.order, embedding,
-                                  bind, opts.toward_viewer, pinned, setup.facing,
-                                  opts.bind_turn, keep, ik_limits, opts.natural_bend,
-                                  limit_axes)
+    current, signs = start.start_pose(skeleton, setup.jmap, setup.frame, setup.order,
+                                      embedding, bind, opts.toward_viewer, pinned,
+                                      setup.facing, opts.bind_turn, keep, ik_limits,
+                                      opts.natural_bend, limit_axes)
+    if opts.start_sides and keep is not None:
+        setup = _sided_reference(setup, signs, np.asarray(embedding.solving.tail_joint),
+                                 ~keep)
     timings["start"] = time.perf_counter() - t1
     jm = setup.jmap
     warnings: list[str] = []
