@@ -307,3 +307,39 @@ def test_a_limb_drawn_moved_keeps_the_start_side_against_its_bind_depth():
     # change as E_v's reference (pulled back across the view plane, mirrored).
     assert depth[True] == pytest.approx(-0.3, abs=0.02)
     assert depth[False] > 0.2
+
+
+def test_a_shin_below_a_thigh_at_the_viewer_bends_in_the_knees_plane():
+    """Crouching seen obliquely: the thigh points at the viewer, so both depth sides of the
+    shin bend the knee the natural way; the side nearer the knee's plane of flexion is the
+    knee's (the other turns the shin sideways)."""
+    from gesture_pose.core.camera import Camera
+    from gesture_pose.core.gesture.depth import start, twist
+
+    sk = _hinge_chain()
+    s = solving_skeleton(sk)
+    cam = Camera.look_at([3.0, -6.0, 0.8], [0.0, 0.0, 0.8], width=800, height=600,
+                         ortho_scale=3.0)
+    pose = Pose.identity(sk.n_bones)
+    for bone, angle in ((4, -75.0), (5, 120.0)):  # hip flexed at the viewer, knee bent
+        state = sk.forward(pose)
+        world = exp_map(np.array([np.radians(angle), 0.0, 0.0]))
+        frame = state.frames[bone]
+        pose = pose.with_rotations(np.array([bone]),
+                                   (frame.T @ world @ frame @ pose.rotations[bone])[None])
+    emb = project_embedding(sk, s, pose, cam)
+    tj = posed_joints(s, sk, pose)
+    knee, ankle = s.head_joint[5], s.tail_joint[5]
+    truth = float(np.sign(cam.depth(tj[[ankle]])[0] - cam.depth(tj[[knee]])[0]))
+    jmap = twist.joint_map(sk, s)
+    frame = energies.view_frame(cam, s.rest_joints.mean(axis=0))
+    bind = Pose.identity(sk.n_bones)
+    # The thigh on its true side (towards the viewer), the shin starting the other way.
+    signs = np.full(jmap.n_bones, -truth)
+    signs[4] = -1.0
+    fixed = np.zeros(jmap.n_bones, bool)
+    fixed[:4] = True
+    got = start.hinge_signs(sk, jmap, frame, emb, bind, signs, fixed)
+    undecided = start.hinge_signs(sk, jmap, frame, emb, bind, signs, fixed, min_off=np.inf)
+    assert got[5] == truth
+    assert undecided[5] == -truth  # the bend's sense alone does not decide here

@@ -193,7 +193,7 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                 embedding: Embedding2D, bind: Pose, signs: np.ndarray, fixed: np.ndarray,
                 ik_limits: np.ndarray | None = None, natural_bend: bool = True,
                 min_bend: float = np.radians(3.0), min_lift: float = 0.1,
-                limit_axes: np.ndarray | None = None) -> np.ndarray:
+                limit_axes: np.ndarray | None = None, min_off: float = 0.2) -> np.ndarray:
     """Depth sides of bones at a joint the rig restricts or bends (knees, elbows).
 
     A drawn bone's two depth sides bend its joint with its parent in opposite senses. With
@@ -203,8 +203,11 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     its parent, with a solving child: a shin, a forearm) bent against its parent at rest
     (by at least ``min_bend``: a knee slightly forward, an elbow slightly back) bends the
     same way as at rest: the side whose bend axis ``u_parent x u_bone`` agrees with the rest bend
-    axis carried along by the parent's rotation. Only bones that leave the view plane by at
-    least ``min_lift`` of their length are decided; the others keep ``signs``.
+    axis carried along by the parent's rotation. When both sides do (the parent points
+    along the view: a thigh at the viewer), the side nearer the hinge's plane of flexion
+    (smaller ``|u_bone . axis|``, by at least ``min_off``) is taken: the other turns the
+    bone sideways out of that plane. Only bones that leave the view plane by at least
+    ``min_lift`` of their length are decided; the others keep ``signs``.
 
     Args:
         skeleton: The full skeleton.
@@ -221,6 +224,8 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         min_lift: Smallest depth change over length of a decided bone.
         limit_axes: The local axes ``ik_limits`` refer to, as columns, ``(n, 3, 3)`` (None:
             the bones' own axes; see :func:`~.rig.rig_rows`).
+        min_off: Smallest difference of the two sides' ``|cos|`` to the hinge axis that
+            decides between two natural bends.
 
     Returns:
         The sides, ``(m,)``.
@@ -263,9 +268,17 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                     and np.linalg.norm(axis) >= np.sin(min_bend)):
                 world = state.frames[parent] @ skeleton.rest_frames[parent].T
                 u = state.tails[parent] - state.heads[parent]
-                score = [float(np.cross(u, c) @ (world @ axis)) for c in cands]
+                hinge_axis = world @ axis
+                score = [float(np.cross(u, c) @ hinge_axis) for c in cands]
                 if score[0] * score[1] < 0:
                     signs[k] = 1.0 if score[0] > 0 else -1.0
+                elif min(score) > 0.0:
+                    # Both sides bend the natural way (the parent points along the view):
+                    # the one nearer the hinge's plane of flexion.
+                    off = [abs(float(c @ hinge_axis)) / max(float(np.linalg.norm(c)
+                           * np.linalg.norm(hinge_axis)), 1e-12) for c in cands]
+                    if abs(off[0] - off[1]) >= min_off:
+                        signs[k] = 1.0 if off[0] < off[1] else -1.0
         direction = _direction(frame, drawn, signs[k] * depth)
         if np.linalg.norm(direction) < 1e-9 * length:
             continue
