@@ -343,3 +343,43 @@ def test_a_shin_below_a_thigh_at_the_viewer_bends_in_the_knees_plane():
     undecided = start.hinge_signs(sk, jmap, frame, emb, bind, signs, fixed, min_off=np.inf)
     assert got[5] == truth
     assert undecided[5] == -truth  # the bend's sense alone does not decide here
+
+
+def test_a_joint_slid_along_a_straight_spine_is_put_back_where_the_bind_pose_has_it():
+    from gesture_pose.core.gesture.depth.regularity import spine_chain, spine_runs
+
+    sk = _hinge_chain()  # a vertical chain of four unsided bones, then a leg
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=True)
+    emb = project_embedding(sk, s, Pose.identity(sk.n_bones), cam)
+    chain = spine_chain(s)
+    assert [s.joint_bones[j] for j in chain] == ["b0 head", "b0 tail", "b1 tail", "b2 tail",
+                                                 "b3 tail"]
+    frame = energies.view_frame(cam, s.rest_joints.mean(axis=0))
+    # The 2D fit slid the second inner joint 40% of a link down the straight run: its
+    # links read 1.4 and 0.6 of their lengths.
+    slid = emb.joints2d.copy()
+    step = slid[chain[3]] - slid[chain[2]]
+    slid[chain[2]] += 0.4 * step
+    np.testing.assert_allclose(spine_runs(s, slid, s.rest_joints, frame), emb.joints2d,
+                               atol=1e-9)
+    # (On the benchmark's traced drawings, cached 2D fits of 3e58fb0's parent: the oblique
+    # raised arm, whose pelvis link was drawn at 40% of its length and the chest above it at
+    # 162%, 5.34 -> 3.92 % of the height; the 25 drawings 7.80 -> 7.65 on average.)
+    # A straight spine whose last link is drawn at half its length, none too long: a bone
+    # turned towards the viewer, kept as drawn.
+    short = emb.joints2d.copy()
+    below = ~np.isin(np.arange(s.n_joints), chain[:4])
+    short[below] -= 0.5 * (short[chain[4]] - short[chain[3]])
+    np.testing.assert_array_equal(spine_runs(s, short, s.rest_joints, frame), short)
+    # A spine drawn bent (its third link turned 30 degrees in the image) is two runs: the
+    # bend stays as drawn, a joint slid inside the first run is put back.
+    bent = emb.joints2d.copy()
+    rot = np.array([[np.cos(0.52), -np.sin(0.52)], [np.sin(0.52), np.cos(0.52)]])
+    below = np.isin(np.arange(s.n_joints), chain[3:]) | ~np.isin(np.arange(s.n_joints), chain)
+    bent[below] = bent[chain[2]] + (bent[below] - bent[chain[2]]) @ rot.T
+    bent[chain[1]] += 0.3 * (bent[chain[2]] - bent[chain[1]])
+    out = spine_runs(s, bent, s.rest_joints, frame)
+    np.testing.assert_allclose(out[chain[1]], emb.joints2d[chain[1]], atol=1e-9)
+    np.testing.assert_allclose(np.delete(out, chain[1], axis=0),
+                               np.delete(bent, chain[1], axis=0), atol=1e-12)

@@ -103,6 +103,10 @@ class DepthOptions:
         start_sides: E_v's reference for the bones drawn unlike the bind pose (agreement
             below ``bind_keep``) is the bind pose's depth change in size only, on the
             start's depth side (ours; :func:`_sided_reference`).
+        spine_runs: Largest angle between consecutive drawn spine links whose inner joints
+            are respaced along the drawn run as in the bind pose's image when a link of
+            the run is drawn longer than it is, radians (ours,
+            :func:`.regularity.spine_runs`); 0 disables it.
         bind_orders: Between parts drawn, with the links between them, as the bind pose
             shows them (ours; with E_b on), a depth order the bind pose has the other way
             round is left out and one it meets asks for no more than the bind pose's gap:
@@ -142,6 +146,7 @@ class DepthOptions:
     bind_keep: float = 0.5
     natural_bend: bool = True
     start_sides: bool = True
+    spine_runs: float = float(np.radians(10.0))
     bind_orders: bool = True
     drop_unmet_orders: bool = True
     order_patience: int = 25
@@ -210,6 +215,7 @@ class _Setup:
     joint_names: tuple[str, ...]
     facing: float = 1.0
     agreement: np.ndarray | None = None
+    embedding: Embedding2D | None = None
 
     def all_constraints(self, X: np.ndarray) -> list[LinearConstraint]:
         """The fixed constraints plus the same-direction rows built at positions ``X``."""
@@ -235,6 +241,9 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
         raise InputError("The 2D embedding has missing or invalid joints: redo the fit.")
     X_rest, _ = twist.joint_positions(skeleton, jmap, bind)
     frame = energies.view_frame(camera, X_rest.mean(axis=0))
+    if opts.spine_runs > 0:
+        embedding = replace(embedding, joints2d=regularity.spine_runs(
+            s, embedding.joints2d, X_rest, frame, opts.spine_runs))
     a, b = energies.joint_links(np.asarray(s.joint_parent))
     lengths = np.linalg.norm(X_rest[b] - X_rest[a], axis=1)
     n_j = jmap.n_joints
@@ -328,7 +337,7 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
                                             rows.labels))
     kappa = 1.0 / max(float(np.sum(lengths**2)), 1e-12)
     setup = _Setup(jmap, frame, (a, b), lengths, ratios, terms, constraints, order, kappa,
-                   triples, X_rest, joint_names, facing, agreement)
+                   triples, X_rest, joint_names, facing, agreement, embedding)
     return setup, X_rest, contacts, names
 
 
@@ -461,6 +470,7 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
     bind = base.with_rotations(bones, np.tile(np.eye(3), (len(bones), 1, 1)))
     setup, X_rest, contacts, names = _setup(skeleton, embedding, camera, bind, opts,
                                             link_confidence, skip)
+    embedding = setup.embedding  # the drawn joints as the 3D step reads them
     timings = {"setup": time.perf_counter() - t0}
     t1 = time.perf_counter()
     # Bones drawn as the bind pose shows them start at their bind rotation.
