@@ -383,3 +383,30 @@ def test_a_joint_slid_along_a_straight_spine_is_put_back_where_the_bind_pose_has
     np.testing.assert_allclose(out[chain[1]], emb.joints2d[chain[1]], atol=1e-9)
     np.testing.assert_allclose(np.delete(out, chain[1], axis=0),
                                np.delete(bent, chain[1], axis=0), atol=1e-12)
+
+
+def test_a_limb_drawn_near_its_bind_direction_but_moved_takes_the_default_side():
+    """The forearm of the previous test turned only 30 degrees down in the image: within
+    45 degrees of its bind direction, but 0.2 units from its bind image, so it has moved
+    and its bind side (away) is not kept; the character's front (towards the viewer) is."""
+    base = _turned_tree()
+    tails = base.rest_tails.copy()
+    tails[5] = [-1.0, 0.3, 1.05]
+    sk = replace(base, rest_tails=tails, rest_frames=np.stack(
+        [frame_along(t - h, 0.2 * i) for i, (h, t) in enumerate(zip(base.rest_heads, tails,
+                                                                     strict=True))]))
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=True)
+    truth = Pose.identity(6)
+    rot = sk.aim_local(5, np.array([-0.2 * np.sqrt(3.0), -0.3, -0.2]), sk.forward(truth),
+                       truth.rotations[5])
+    truth = truth.with_rotations(np.array([5]), rot[None])
+    emb = project_embedding(sk, s, truth, cam)
+    tip, elbow = s.tail_joint[5], s.head_joint[5]
+    depth = {}
+    for side in (0.1, 0.0):
+        X = solve_pose3d(sk, emb, cam, options=DepthOptions(bind_side=side)).joints3d
+        depth[side] = float((X[tip] - X[elbow]) @ FORWARD)
+    # Measured: -0.30 (the truth) against +0.30 keeping the bind side.
+    assert depth[0.1] == pytest.approx(-0.3, abs=0.02)
+    assert depth[0.0] > 0.2

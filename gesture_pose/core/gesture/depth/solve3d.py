@@ -97,6 +97,9 @@ class DepthOptions:
             of the character's height, at which E_b's weight falls to ``exp(-1/2)``.
         bind_keep: Smallest agreement at which the start keeps a bone's bind rotation
             instead of lifting it.
+        bind_side: Smallest agreement at which the start lifts a bone on its bind depth
+            side (when that side is clear); below it the bone has moved and takes the
+            default side (ours).
         natural_bend: Start bones bent against their parents at rest (knees, elbows) on
             the depth side that bends them the same way (ours; IK limits on the bone
             decide first).
@@ -144,6 +147,7 @@ class DepthOptions:
     bind_weight: float = 1.0
     bind_sigma: float = 0.025
     bind_keep: float = 0.5
+    bind_side: float = 0.1
     natural_bend: bool = True
     start_sides: bool = True
     spine_runs: float = float(np.radians(10.0))
@@ -478,13 +482,15 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
     link_agreement[setup.links[1]] = setup.agreement
     keep = link_agreement[np.asarray(embedding.solving.tail_joint)] >= opts.bind_keep \
         if opts.bind_weight > 0 else None
+    tails = np.asarray(embedding.solving.tail_joint)
     current, signs = start.start_pose(skeleton, setup.jmap, setup.frame, setup.order,
                                       embedding, bind, opts.toward_viewer, pinned,
                                       setup.facing, opts.bind_turn, keep, ik_limits,
-                                      opts.natural_bend, limit_axes)
+                                      opts.natural_bend, limit_axes,
+                                      link_agreement[tails] if setup.facing > 0 else None,
+                                      opts.bind_side)
     if opts.start_sides and keep is not None:
-        setup = _sided_reference(setup, signs, np.asarray(embedding.solving.tail_joint),
-                                 ~keep)
+        setup = _sided_reference(setup, signs, tails, ~keep)
     timings["start"] = time.perf_counter() - t1
     jm = setup.jmap
     warnings: list[str] = []

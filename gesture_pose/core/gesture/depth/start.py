@@ -3,7 +3,8 @@
 A drawn link fixes how much a bone leaves the view plane, ``sqrt(l^2 - l_2d^2)``, not to
 which side. The start aims every solving bone at its drawn direction, lifted by that
 amount, on the bind pose's side when the bone clearly has one (depth slope above 0.3) and
-is drawn within 45 degrees of its bind direction, else towards the character's front (its
+is drawn within 45 degrees of its bind direction and near its bind image, else towards the
+character's front (its
 ``.L`` side is its own left), or towards the viewer when the front is not clear (a side
 view); then sides that break depth-order constraints are flipped greedily. When the
 drawing shows the character turned around (its left and right hips or shoulders swapped
@@ -292,7 +293,8 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                toward_viewer: bool = True, pinned: np.ndarray | None = None,
                facing: float = 1.0, bind_turn: float = np.radians(45.0),
                keep: np.ndarray | None = None, ik_limits: np.ndarray | None = None,
-               natural_bend: bool = False, limit_axes: np.ndarray | None = None
+               natural_bend: bool = False, limit_axes: np.ndarray | None = None,
+               agreement: np.ndarray | None = None, min_agreement: float = 0.1
                ) -> tuple[Pose, np.ndarray]:
     """The lifted start pose and the depth side of each solving bone.
 
@@ -317,6 +319,10 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         natural_bend: Bones bent against their parents at rest bend the same way
             (:func:`hinge_signs`) where IK limits do not decide.
         limit_axes: The local axes ``ik_limits`` refer to (:func:`hinge_signs`).
+        agreement: How well each solving bone is drawn as the bind pose shows it,
+            :func:`.energies.bind_agreement` of its link, ``(m,)`` (optional).
+        min_agreement: Smallest ``agreement`` for the bind pose's side to be kept: a bone
+            drawn far from its bind image has moved, and its bind side says little.
 
     Returns:
         ``(pose, signs)``: the start pose and the sides, ``(m,)``.
@@ -338,6 +344,8 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     near = near_bind_direction(drawn, state.tails[jm.bones] - state.heads[jm.bones], f,
                                bind_turn)
     kept = (np.abs(bind_slope) > 0.3) & near
+    if agreement is not None:
+        kept &= np.asarray(agreement, float) >= min_agreement
     signs = np.where(kept, facing * np.sign(bind_slope), default)
     if natural_bend or (ik_limits is not None and np.any(np.isfinite(ik_limits))):
         signs = hinge_signs(skeleton, jm, f, embedding, bind, signs, fixed, ik_limits,
