@@ -7,7 +7,13 @@ import pytest
 
 from gesture_pose.core.exceptions import InputError
 from gesture_pose.core.stick.figure import humanoid_figure
-from gesture_pose.core.stick.graph import build_graph, simplify, stick_figure_from_strokes
+from gesture_pose.core.stick.graph import (
+    build_graph,
+    side_offsets,
+    simplify,
+    stick_figure_from_strokes,
+)
+from gesture_pose.core.stick.solve import _facing
 from tests.core.test_stick_figure import humanoid_skeleton
 
 # A front-view stick figure in pixels (character's left on the image's right).
@@ -76,6 +82,25 @@ def test_left_right_follow_the_front_view_sign_test():
     assert np.allclose(swapped.points[swapped.joint_names.index("elbow.L")], P["elbow.L"])
     # Legs keep their (back-view) assignment, with the toe following its leg.
     assert swapped.present[swapped.joint_names.index("toe.L")]
+
+
+def test_labels_tell_which_way_the_figure_faces():
+    strokes = [_seg(a, b) for a, b in _bones()]
+    front = stick_figure_from_strokes(strokes, _figure())
+    offsets = side_offsets(front)
+    # Left elbow and wrist 70 and 120 px right of the neck, right ones -70 and -100: the
+    # arms' value is the difference of their means.
+    assert offsets["arms"] == pytest.approx((70 + 120) / 2 - (-70 - 100) / 2)
+    assert offsets["legs"] > 0
+    assert _facing(front, "front", True) == "front"
+    # Labelled from behind (Facing Back, or both pairs swapped): the search starts with
+    # the character's back to the viewer whatever the option says.
+    back = stick_figure_from_strokes(strokes, _figure(), facing="back")
+    assert side_offsets(back)["arms"] == pytest.approx(-offsets["arms"])
+    assert _facing(back, "front", True) == "back"
+    assert _facing(front.swapped("arms").swapped("legs"), "front", True) == "back"
+    # A non-humanoid keeps the option.
+    assert _facing(back, "front", False) == "front"
 
 
 def test_symmetric_limbs_are_flagged_ambiguous():

@@ -238,6 +238,39 @@ def _side_value(points: np.ndarray, base: np.ndarray, up: np.ndarray) -> float:
     return float(np.mean(rel[:, 0] * up[1] - rel[:, 1] * up[0]))
 
 
+#: Each left/right pair of a humanoid drawing: its joints and the joint it hangs from.
+SIDE_PAIRS = (("arms", ("elbow", "wrist", "hand"), "neck"),
+              ("legs", ("knee", "ankle", "toe"), "pelvis"))
+
+
+def side_offsets(stick: StickFigure) -> dict[str, float]:
+    """Per pair of a humanoid drawing, how far its left limb lies right of its right one.
+
+    The front-view sign test's value: the mean image-right offset (pixels, across the
+    drawn pelvis-neck axis) of the drawn left joints from the joint the pair hangs from,
+    less the right ones'. Positive when the labels say the character faces the viewer.
+
+    Args:
+        stick: A humanoid drawing (joints named as in
+            :data:`~gesture_pose.core.stick.figure.HUMANOID_JOINTS`).
+
+    Returns:
+        ``{"arms": value, "legs": value}`` in pixels.
+    """
+    names, pts = stick.joint_names, stick.points
+    pelvis, neck = pts[names.index("pelvis")], pts[names.index("neck")]
+    up = (neck - pelvis) / max(np.linalg.norm(neck - pelvis), 1e-9)
+    out = {}
+    for pair, keys, base in SIDE_PAIRS:
+        vals = {}
+        for s in "LR":
+            idx = [names.index(f"{k}.{s}") for k in keys if f"{k}.{s}" in names]
+            idx = [i for i in idx if stick.present[i]]
+            vals[s] = _side_value(pts[idx], pts[names.index(base)], up)
+        out[pair] = vals["L"] - vals["R"]
+    return out
+
+
 #: Lengths tell matches apart when the best one's drawing scale is below this fraction
 #: of the next one's.
 LENGTH_MARGIN = 0.8
@@ -335,21 +368,14 @@ def match_figure(graph: DrawnGraph, figure: CharacterFigure, facing: str = "fron
         sided = len(matches) > 1
         return StickFigure(names, points, present, figure.joint_parents, graph.contacts,
                            ("limbs",) if sided else ())
-    pelvis, neck = points[figure.joint("pelvis")], points[figure.joint("neck")]
-    up = (neck - pelvis) / max(np.linalg.norm(neck - pelvis), 1e-9)
+    spine = np.linalg.norm(points[figure.joint("neck")] - points[figure.joint("pelvis")])
     sign = 1.0 if facing == "front" else -1.0
     ambiguous = []
-    for pair, keys_, base in (("arms", ("elbow", "wrist", "hand"), neck),
-                              ("legs", ("knee", "ankle", "toe"), pelvis)):
-        vals = {}
-        for s in "LR":
-            idx = [figure.joint(f"{k}.{s}") for k in keys_ if f"{k}.{s}" in names]
-            idx = [i for i in idx if present[i]]
-            vals[s] = _side_value(points[idx], base, up)
+    for pair, value in side_offsets(fig).items():
         # Left limbs should be on the image's right (positive side value) from the front.
-        if sign * (vals["L"] - vals["R"]) < 0:
+        if sign * value < 0:
             fig = fig.swapped(pair)
-        if abs(vals["L"] - vals["R"]) < 0.1 * np.linalg.norm(neck - pelvis):
+        if abs(value) < 0.1 * spine:
             ambiguous.append(pair)
     return StickFigure(fig.joint_names, fig.points, fig.present, fig.parents, fig.contacts,
                        tuple(ambiguous))

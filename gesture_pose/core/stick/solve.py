@@ -30,7 +30,7 @@ from .environment import Environment, Seat, distance_grid, find_seat
 from .figure import CharacterFigure, character_figure, spine_joint
 from .finish import finish_pose
 from .genetic import GAConfig, genetic_search
-from .graph import SNAP_RADIUS, StickFigure, stick_figure_from_strokes
+from .graph import SNAP_RADIUS, StickFigure, side_offsets, stick_figure_from_strokes
 from .kinematics import PoseModel
 from .lifting import depth_flips, lift_population
 from .normalize import drawing_scale, normalize_figure
@@ -324,6 +324,19 @@ def _initial_population(model: PoseModel, bounds: np.ndarray, n: int, stick: Sti
     return lift_population(model, pop, bounds, stick, camera, rng)
 
 
+def _facing(stick: StickFigure, facing: str, humanoid: bool) -> str:
+    """Which way the drawn labels say a humanoid faces: ``"front"`` or ``"back"``.
+
+    The drawing's left and right limbs are labelled (by the sign test with the Facing
+    option, by Swap Sides, or by whoever made the figure): left arms and legs on the
+    image's right of the spine say that the character faces the viewer, on its left that
+    it is seen from behind. A non-humanoid keeps ``facing``.
+    """
+    if not humanoid:
+        return facing
+    return "front" if sum(side_offsets(stick).values()) >= 0.0 else "back"
+
+
 def _distinct(joints: np.ndarray, order: np.ndarray, k: int, min_dist: float,
               reduce=np.max) -> list[int]:
     """Greedy pick of up to ``k`` indices, in ``order``, of poses that differ.
@@ -483,7 +496,7 @@ def _solve(inp: StickInput) -> StickResult:
     t0 = time.perf_counter()
     rng = np.random.default_rng(inp.seed)
     init = _initial_population(model, bounds, inp.ga.population, stick, cam,
-                               root - base_root, inp.facing, rng)
+                               root - base_root, _facing(stick, inp.facing, humanoid), rng)
     ga = genetic_search(lambda X: objective.evaluate(X, collision=False)[0], bounds, init,
                         rng, inp.ga)
     timings["genetic"] = time.perf_counter() - t0
