@@ -194,7 +194,7 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                 embedding: Embedding2D, bind: Pose, signs: np.ndarray, fixed: np.ndarray,
                 ik_limits: np.ndarray | None = None, natural_bend: bool = True,
                 min_bend: float = np.radians(3.0), min_lift: float = 0.1,
-                limit_axes: np.ndarray | None = None, min_off: float = 0.2) -> np.ndarray:
+                limit_axes: np.ndarray | None = None, min_off: float = 0.15) -> np.ndarray:
     """Depth sides of bones at a joint the rig restricts or bends (knees, elbows).
 
     A drawn bone's two depth sides bend its joint with its parent in opposite senses. With
