@@ -35,8 +35,6 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.eval_assets import ADVENTURER, load_adventurer
-
 HUMANOID_VIEWS = {"front": (0.0, -1.0, 0.0), "oblique": (0.5, -1.0, 0.2)}
 QUADRUPED_VIEWS = {"side": (1.0, 0.0, 0.0), "oblique": (1.0, -0.6, 0.2)}
 
@@ -235,6 +233,8 @@ def cmu_table(quick: bool) -> tuple[str, list[str], list[list]] | None:
     The character is read as the add-on reads it (the joint skeleton of its token glTF
     bones) and seen from the front (it faces +Y).
     """
+    from bench.eval_assets import ADVENTURER, load_adventurer
+
     if not ADVENTURER.exists():
         return None
     import bpy
