@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from gesture_pose.core.camera import Camera
 from gesture_pose.core.skeleton import Pose
@@ -22,7 +23,7 @@ from gesture_pose.core.stick.graph import StickFigure
 from gesture_pose.core.stick.kinematics import PoseModel
 from gesture_pose.core.stick.normalize import normalize_figure
 from gesture_pose.core.stick.pins import EnvPinSpec, pin_offsets
-from gesture_pose.core.stick.solve import StickInput, solve_stick
+from gesture_pose.core.stick.solve import StickInput, _spine_flipped, solve_stick
 from tests.core.test_stick_figure import humanoid_skeleton
 from tests.core.test_stick_objective import chair_env
 
@@ -134,6 +135,34 @@ def test_reconstructs_a_standing_pose_with_feet_pinned():
     assert [s.score for s in res.suggestions] == sorted(s.score for s in res.suggestions)
     again = solve_stick(inp)
     assert np.array_equal(again.suggestions[0].genes, res.suggestions[0].genes)
+
+
+def test_spine_flip_mirrors_the_body_bend_along_the_eye_ray():
+    sk, fig, cam, stick, pins, truth = _stand_problem()
+    model = PoseModel(sk, fig, Pose.identity(sk.n_bones))
+    bounds = model.bounds(np.zeros(3), 2.0)
+    x = np.zeros(model.n_genes)
+    x[:3] = [0.0, -1.0, 0.0]
+    x[model.genes_of("spine")] = np.radians([35.0, 0.0, 0.0])  # bent over, towards the eye
+    flipped = _spine_flipped(model, x, bounds, cam)
+    before = fig.joint_positions(*model.forward(x[None])[:2])[0]
+    after = fig.joint_positions(*model.forward(flipped[None])[:2])[0]
+    neck = fig.joint("neck")
+    ray = before[0] - cam.rays(cam.project(before[:1]))[0][0]
+    ray /= np.linalg.norm(ray)
+    d0, d1 = before[neck] - before[0], after[neck] - after[0]
+    # Same pelvis, spine joint as far behind the pelvis along the eye ray as it was in
+    # front of it, and across the ray unchanged; the spine's own bend is kept.
+    assert np.allclose(after[0], before[0])
+    assert d0 @ ray < -0.1
+    assert d1 @ ray == pytest.approx(-(d0 @ ray), abs=1e-9)
+    assert np.allclose(d1 - (d1 @ ray) * ray, d0 - (d0 @ ray) * ray, atol=1e-9)
+    assert np.array_equal(flipped[6:], x[6:])
+    # Under perspective the spine joint's pixel moves with its depth (nearer is larger),
+    # along the drawn spine: its direction in the image stays within a degree.
+    q0, q1 = cam.project(before[[0, neck]]), cam.project(after[[0, neck]])
+    u0, u1 = q0[1] - q0[0], q1[1] - q1[0]
+    assert np.degrees(np.arccos(u0 @ u1 / np.linalg.norm(u0) / np.linalg.norm(u1))) < 1.0
 
 
 def test_pinned_feet_stand_flat_on_the_floor():

@@ -324,6 +324,35 @@ def _initial_population(model: PoseModel, bounds: np.ndarray, n: int, stick: Sti
     return lift_population(model, pop, bounds, stick, camera, rng)
 
 
+def _spine_flipped(model: PoseModel, x: np.ndarray, bounds: np.ndarray, camera: Camera
+                   ) -> np.ndarray:
+    """``x`` with its main axis' depth mirrored: the body bent the other way along the eye.
+
+    The root turns (about the pelvis) by the smallest rotation taking the pelvis-to-spine
+    joint direction ``d`` to ``d - 2 (d . r) r``, ``r`` the eye ray through the pelvis:
+    the spine joint projects where it did (exactly for an orthographic view), now as far
+    behind the pelvis as it was in front, or the reverse.
+
+    Args:
+        model: Genes -> bones.
+        x: The pose, shape ``(G,)``.
+        bounds: Gene bounds, shape ``(G, 2)``.
+        camera: The view.
+
+    Returns:
+        The flipped genes, shape ``(G,)``.
+    """
+    fig = model.figure
+    heads, tails, _ = model.forward(np.asarray(x, float)[None])
+    joints = fig.joint_positions(heads, tails)[0]
+    r = normalize(joints[0] - camera.rays(camera.project(joints[:1]))[0][0])
+    d = normalize(joints[spine_joint(fig)] - joints[0])
+    turn = rotation_between(d, d - 2.0 * (d @ r) * r)
+    out = np.array(x, float)
+    out[3:6] = log_map(turn @ exp_map(out[3:6]))
+    return np.clip(out, bounds[:, 0], bounds[:, 1])
+
+
 def _facing(stick: StickFigure, facing: str, humanoid: bool) -> str:
     """Which way the drawn labels say a humanoid faces: ``"front"`` or ``"back"``.
 
@@ -509,8 +538,12 @@ def _solve(inp: StickInput) -> StickResult:
     # Every depth interpretation (near or far end of each limb bone) of the best ones,
     # ranked by plausibility (:mod:`.ranking`) with the refined ones.
     tops = np.argsort([r.energy for r in first], kind="stable")[:FLIPPED_SEEDS]
+    # Each also with its spine's depth mirrored: the search samples spines near the view
+    # plane, and a body bent towards the eye or away from it has a twin bent the other way.
+    starts = [first[i].x for i in tops]
+    starts += [_spine_flipped(model, x, bounds, cam) for x in starts]
     pool = np.concatenate([[r.x for r in first]] +
-                          [depth_flips(model, first[i].x, bounds, stick, cam) for i in tops])
+                          [depth_flips(model, x, bounds, stick, cam) for x in starts])
     # Collisions (the costly term) only for the most plausible without them.
     cheap, _ = plausibility(objective, pool, rank, collision=False)
     screened = np.argsort(cheap, kind="stable")[:SCREENED]
