@@ -6,7 +6,9 @@
    same-direction links, contacts and limb splines (:mod:`.regularity`), and the depth
    order of occlusions and T-junctions (Eq. 8, :mod:`.ordering`). E_b (ours, the Eq. 9
    stabilizer measured from the bind pose) keeps the links drawn as the bind pose shows
-   them at their bind vectors: what the drawing leaves alone keeps its depth.
+   them at their bind vectors: what the drawing leaves alone keeps its depth, and so do
+   the depth orders between such parts. Joints the 2D fit slid along a straight drawn
+   spine are respaced first (:func:`.regularity.spine_runs`).
 2. Start from the bind pose with every solving bone aimed at its drawn direction, lifted
    out of the view plane by the length the drawing lost (``sqrt(l^2 - l_2d^2)``). From a
    flat pose the linearized projection cannot shorten a bone (the depth direction is a
@@ -14,8 +16,9 @@
    bind pose start at their bind rotation. The depth side of each lifted bone is the bind
    pose's when that is clear, else towards the viewer; IK limits (and, as an option, the
    rest pose's bend) decide the side of a bone at a restricted joint; sides that break an
-   ordering constraint are flipped greedily (:mod:`.start`). Pinned bones, locked axes
-   and IK limits restrict the twists (:mod:`.rig`).
+   ordering constraint are flipped greedily (:mod:`.start`); E_v measures the bones it
+   lifted on their start side. Pinned bones, locked axes and IK limits restrict the
+   twists (:mod:`.rig`).
 3. A sequence of QPs (:mod:`.qp`) in twist coordinates (:mod:`.twist`) with the
    stabilizer of Eq. 9, ordering as inequalities, until the step or the energy decrease
    is negligible.
