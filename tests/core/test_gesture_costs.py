@@ -62,6 +62,38 @@ def test_a_contour_of_its_joints_crossed_between_the_circles_is_inconsistent():
     assert _cost(strokes) >= 0.9
 
 
+def test_an_outline_along_a_thin_bone_is_not_a_crossing():
+    """A part thinner than a resampling step (a hand seen edge-on) has its outline within
+    half a step of its bone's axis all along: near, but running along the axis, so not
+    crossed. The same outline turned across the axis is a crossing."""
+    head, tail = np.array([100.0, 300.0]), np.array([400.0, 300.0])
+    frame = [Stroke(segment([50.0, 100.0], [450.0, 120.0], 40)),  # set the drawing's size
+             Stroke(segment([50.0, 500.0], [450.0, 480.0], 40))]
+    loop = np.concatenate([segment(head + [0, 3], tail + [0, 3], 60),
+                           segment(tail - [0, 3], head - [0, 3], 60)])
+    d = preprocess([Stroke(loop), *frame])
+    assert 3.0 < 0.5 * d.epsilon
+    g = d.group[d.tree.query(head + [150.0, 3.0])[1]]
+    params = CostParams(w_direction=0.0, sigma_length=10.0)
+
+    def cost(drawing) -> float:
+        return float(pair_cost(drawing, head[None], np.array([3.0]), np.array([g]),
+                               np.array([1]), tail[None], np.array([3.0]), np.array([g]),
+                               np.array([1]), 300.0, params)[0, 0])
+
+    along = cost(d)
+    assert along < 0.9
+    # A line of the same contour across the axis between the joints makes Cc = 1.
+    cross = np.concatenate([loop, segment(head - [0, 3], [250.0, 280.0], 30),
+                            segment([250.0, 280.0], [250.0, 320.0], 8)])
+    crossed = preprocess([Stroke(cross), *frame])
+    g2 = crossed.group[crossed.tree.query(head + [150.0, 3.0])[1]]
+    assert g2 == crossed.group[crossed.tree.query([250.0, 300.0])[1]]
+    assert float(pair_cost(crossed, head[None], np.array([3.0]), np.array([g2]),
+                           np.array([1]), tail[None], np.array([3.0]), np.array([g2]),
+                           np.array([1]), 300.0, params)[0, 0]) >= 0.9
+
+
 def test_crossing_stations_stay_between_the_joint_circles():
     t = crossing_stations(np.array([[300.0]]), np.array([35.0]), np.array([50.0]), 10.0)
     assert t.shape == (1, 1, 9)
@@ -113,14 +145,32 @@ def test_length_term_accepts_the_range_between_view_and_full_length():
     paper = length_cost(drawn, 50.0, 10.0)
     assert paper[3] == 0.0 and np.all(paper[[0, 1, 2, 4]] > 0.0)
     np.testing.assert_allclose(paper[4], 1.0 - np.exp(-36.0 / (2.0 * (10.0 / 3.0) ** 2)))
-    view = length_cost(drawn, 50.0, 10.0, shortest=40.0)
+    view = length_cost(drawn, 50.0, 10.0, free=(40.0, 50.0))
     np.testing.assert_allclose(view[1:4], 0.0)
     # Shorter than the view length: the paper's Gaussian from the view length; longer than
     # the full length: unchanged.
     np.testing.assert_allclose(view[0], length_cost(np.array(20.0), 40.0, 10.0))
     np.testing.assert_allclose(view[4], paper[4])
-    # A view length above the bone length (nearer than the mean depth) widens it upwards.
-    np.testing.assert_allclose(length_cost(np.array([52.0]), 50.0, 10.0, shortest=53.0), 0.0)
+    # A range above the bone length (nearer than the mean depth) widens it upwards, and the
+    # stricter side starts at its top.
+    near = length_cost(np.array([52.0, 56.0]), 50.0, 10.0, free=(50.0, 53.0))
+    np.testing.assert_allclose(near, [0.0, 1.0 - np.exp(-9.0 / (2.0 * (10.0 / 3.0) ** 2))])
+
+
+def test_length_term_is_lenient_up_to_the_nearest_depth():
+    """Through a perspective camera a bone drawn longer than its length, up to its length at
+    the nearest depth it can reach, pays the lenient sigma; beyond, the strict sigma / 3 on
+    the rest of the excess (the cost stays continuous and grows with the length)."""
+    drawn = np.array([50.0, 55.0, 60.0, 63.0, 70.0])
+    cost = length_cost(drawn, 50.0, 10.0, nearest=60.0)
+    np.testing.assert_allclose(cost[:3], 1.0 - np.exp(-0.5 * np.array([0.0, 0.5, 1.0]) ** 2))
+    np.testing.assert_allclose(cost[3], 1.0 - np.exp(-0.5 * (1.0 + 0.9) ** 2))
+    assert np.all(np.diff(cost) > 0.0)
+    paper = length_cost(drawn, 50.0, 10.0)
+    assert np.all(cost[1:] < paper[1:])
+    # Shorter drawings are unchanged by it.
+    np.testing.assert_allclose(length_cost(np.array([30.0]), 50.0, 10.0, nearest=60.0),
+                               length_cost(np.array([30.0]), 50.0, 10.0))
 
 
 def test_problem_gives_the_view_length_only_with_view_lengths():
@@ -137,6 +187,14 @@ def test_problem_gives_the_view_length_only_with_view_lengths():
     problem = make_problem(d, sol, 100.0, view)
     tail = sol.tail_joint[1]
     np.testing.assert_allclose(problem.link_length[tail], 100.0)
-    np.testing.assert_allclose(problem.shortest(tail), 50.0)
+    np.testing.assert_allclose(problem.free_lengths(tail), (50.0, 100.0))
     paper = make_problem(d, sol, 100.0, view, CostParams(view_lengths=False))
-    assert paper.shortest(tail) is None
+    assert paper.free_lengths(tail) is None
+    # Through a perspective camera the bone may come nearer: up to its length at that
+    # depth, a longer drawing pays the lenient sigma (orthographic: no near scale).
+    assert problem.nearest_length(tail) is None
+    near = make_problem(d, sol, 100.0, view, near_scale=np.array([1.0, 1.1, 1.2]))
+    np.testing.assert_allclose(near.nearest_length(tail), 120.0)
+    off = make_problem(d, sol, 100.0, view, CostParams(perspective_lengths=False),
+                       np.full(3, 1.2))
+    assert off.nearest_length(tail) is None

@@ -155,3 +155,23 @@ def test_interior_bones_join_the_rigid_neighbourhood():
     assert np.flatnonzero(problem.rigid).tolist() == sorted(heads + tails)
     groups = rigid_groups(problem)
     assert len(groups) == 1 and sorted(groups[0].tolist()) == sorted([chest, *heads, *tails])
+
+
+def test_near_scales_follow_the_distance_from_the_root():
+    """Through a perspective camera 6 m away, a joint 1 m along the skeleton from the root
+    can come to 5 m: its link may look up to 6/5 as long; at the root nothing changes, and
+    an orthographic view never scales."""
+    from gesture_pose.core.gesture.embedding import near_scales
+
+    sol = solving_skeleton(chain_skeleton(np.array([[0.0, 0, 0.8], [0.5, 0, 0.8],
+                                                    [1.0, 0, 0.8]])))
+    world = sol.rest_joints
+    cam = front_camera()
+    ppu = cam.pixels_per_unit(6.0)
+    scale = near_scales(cam, sol, world, ppu)
+    reach = np.linalg.norm(world - world[0], axis=1)
+    np.testing.assert_allclose(scale, 6.0 / (6.0 - reach), rtol=1e-6)
+    assert scale.max() > 1.19
+    ortho = front_camera(ortho=True)
+    np.testing.assert_allclose(near_scales(ortho, sol, world, ortho.pixels_per_unit(6.0)),
+                               1.0)

@@ -52,6 +52,14 @@ class CostParams:
             pointing at the viewer) may be drawn at any length between its length in the
             view and its full length at no cost in ``Cl`` (not in the paper); False
             measures the drawn length against the full length only (Eq. 2).
+        perspective_lengths: Through a perspective camera a bone nearer than the
+            character's depth looks longer than its length at that depth: drawn longer, up
+            to its length at the nearest depth it can reach (the root's depth less the
+            bone's distance from the root along the skeleton), it pays ``Cl`` with
+            ``sigma`` instead of the strict ``sigma / 3`` (not in the paper).
+        transverse_crossings: The consistency term ``Cc`` counts a contour near the bone's
+            axis as crossed only where it runs across the axis (ours); False counts any
+            contour of the end joints within half a step of the axis.
     """
 
     alpha: float = np.radians(15.0)
@@ -67,6 +75,8 @@ class CostParams:
     view_offsets: bool = True
     view_angles: bool = True
     view_lengths: bool = True
+    perspective_lengths: bool = True
+    transverse_crossings: bool = True
 
 
 def circle_alignment(drawing: Drawing, centres: np.ndarray, radii: np.ndarray,
@@ -143,30 +153,40 @@ def unary_from_aligned(aligned: np.ndarray, terminal: bool, params: CostParams |
 
 
 def length_cost(dist: np.ndarray, length: float, sigma: float,
-                shortest: float | None = None) -> np.ndarray:
+                free: tuple[float, float] | None = None,
+                nearest: float | None = None) -> np.ndarray:
     """Length term ``Cl`` (Eq. 2): Gaussian misfit, three times stricter when too long.
 
     Args:
         dist: Drawn bone lengths, pixels, any shape.
         length: Expected bone length, pixels.
         sigma: Standard deviation, pixels.
-        shortest: Another expected length (the bone's length seen in the view, see
-            ``view_lengths``): every drawn length between it and ``length`` costs nothing,
-            and the misfit is measured from the nearer end of that range.
+        free: Drawn lengths ``(shortest, longest)`` that cost nothing, pixels (see
+            ``view_lengths``); the misfit is measured from the nearer end of that range,
+            widened to include ``length``. None: only ``length`` (Eq. 2 as in the paper).
+        nearest: The bone's length at the nearest depth it can come to through a
+            perspective camera, pixels (see ``perspective_lengths``): a drawn length above
+            the range is measured with ``sigma`` up to this length and with
+            ``sigma / 3`` beyond it. None: ``sigma / 3`` from the top of the range.
     """
     lo = hi = float(length)
-    if shortest is not None:
-        lo, hi = min(lo, float(shortest)), max(hi, float(shortest))
-    target = np.clip(dist, lo, hi)
-    s = np.where(dist > hi, sigma / 3.0, sigma)
-    return 1.0 - np.exp(-((dist - target) ** 2) / (2.0 * s**2))
+    if free is not None:
+        lo, hi = min(lo, float(free[0])), max(hi, float(free[1]))
+    dist = np.asarray(dist, float)
+    short = np.maximum(lo - dist, 0.0) / sigma
+    over = np.maximum(dist - hi, 0.0)
+    lenient = 0.0 if nearest is None else max(float(nearest) - hi, 0.0)
+    near = np.minimum(over, lenient)
+    over = (near + 3.0 * (over - near)) / sigma
+    return 1.0 - np.exp(-0.5 * (short + over) ** 2)
 
 
 def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
               sa: np.ndarray, pb: np.ndarray, rb: np.ndarray, gb: np.ndarray, sb: np.ndarray,
               length: float, params: CostParams | None = None,
               stations: int = 8, blocked: np.ndarray | None = None,
-              shortest: float | None = None) -> np.ndarray:
+              free: tuple[float, float] | None = None,
+              nearest: float | None = None) -> np.ndarray:
     """Pairwise bone cost ``E(i, j) = 1 - (1 - Cl)(1 - Ccf)(1 - Wc Cc)``.
 
     ``Ccf`` samples the bone's two outlines (offset by the interpolated joint radius) at
@@ -174,7 +194,8 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     ``max(epsilon, r / 2)``) along the bone (within ``conform_angle``), and
     ``Ccf = 1 - (left + right) / 2`` with the conforming fractions per side. ``Cc`` is 1 when
     the bone's axis crosses a contour its end joints come from between the two joint
-    circles (see :func:`crossing_stations`), or when both end joints
+    circles (see :func:`crossing_stations`; the contour must run across the axis there,
+    not along it), or when both end joints
     come from the same contour but lie on opposite sides of it.
 
     Args:
@@ -192,8 +213,9 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
         stations: Samples along the bone per outline.
         blocked: Contour samples claimed by other body parts, which do not count for this
             bone's conformity (the non-overlap constraint), ``(N,)`` bool.
-        shortest: Shortest drawn length the length term accepts at no cost, pixels (see
-            :func:`length_cost`); None: only ``length``.
+        free: Drawn lengths ``(shortest, longest)`` the length term accepts at no cost,
+            pixels (see :func:`length_cost`); None: only ``length``.
+        nearest: The bone's length at its nearest depth, pixels (see :func:`length_cost`).
 
     Returns:
         Costs, shape ``(Ka, Kb)``.
@@ -207,7 +229,7 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     dist = np.linalg.norm(d, axis=2)
     u = d / np.maximum(dist, 1e-9)[..., None]
     perp = np.stack([-u[..., 1], u[..., 0]], axis=-1)
-    cl = length_cost(dist, length, params.sigma_length * drawing.diagonal, shortest)
+    cl = length_cost(dist, length, params.sigma_length * drawing.diagonal, free, nearest)
     t = (np.arange(stations) + 0.5) / stations
     axis = pa[:, None, None, :] + t[None, None, :, None] * d[:, :, None, :]
     r_t = (1.0 - t)[None, None, :] * ra[:, None, None] + t[None, None, :] * rb[None, :, None]
@@ -228,7 +250,15 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     dq, owner = drawing.lookup(q)
     grp = drawing.group[owner]
     own = (grp == ga[:, None, None]) | (grp == gb[None, :, None])
-    cc = ((dq < 0.5 * eps) & own).any(axis=2).astype(float)
+    # The contour must run across the axis: its tangent line at the nearest sample meets
+    # the axis within a step of the station. An outline running along the axis (a part
+    # thinner than a step, such as a hand seen edge-on) is near it but not crossed.
+    normal = drawing.normals[owner]
+    off = np.abs(np.einsum("abtd,abtd->abt", q - drawing.points[owner], normal))
+    across = off < eps * np.abs(np.einsum("abtd,abd->abt", normal, u))
+    if not params.transverse_crossings:
+        across = True
+    cc = ((dq < 0.5 * eps) & own & across).any(axis=2).astype(float)
     same = (ga[:, None] == gb[None, :]) & (ga[:, None] >= 0)
     opposite = same & (sa[:, None] * sb[None, :] < 0)
     cc = np.maximum(cc, opposite.astype(float))

@@ -35,6 +35,7 @@ from .mrf import (
     joint_energy,
     make_problem,
     min_marginals,
+    root_reach,
     solve_tree,
 )
 from .preprocess import PreprocessParams, preprocess
@@ -119,6 +120,28 @@ def posed_joints(solving: SolvingSkeleton, skeleton: Skeleton, pose: Pose) -> np
     heads = solving.bones
     out[solving.head_joint] = state.heads[heads]
     return out
+
+
+def near_scales(camera: Camera, solving: SolvingSkeleton, world: np.ndarray,
+                pixels_per_unit: float) -> np.ndarray:
+    """Largest view scale of each joint's link over the character's scale, ``(J,)``.
+
+    A joint stays within its distance along the skeleton from the root
+    (:func:`~.mrf.root_reach`), so its link can come no nearer than the root's depth less
+    that distance (and no nearer than half the character's depth): through a perspective
+    camera it can look that much longer. 1 for orthographic cameras.
+
+    Args:
+        camera: The view.
+        solving: The solving skeleton.
+        world: Its joints at the current pose, world units, ``(J, 3)``.
+        pixels_per_unit: The character's view scale (at its mean depth).
+    """
+    depth = camera.depth(world)
+    root = int(np.flatnonzero(solving.joint_parent < 0)[0])
+    nearest = np.maximum(depth[root] - root_reach(solving), 0.5 * float(np.mean(depth)))
+    scale = np.array([camera.pixels_per_unit(float(z)) for z in nearest])
+    return np.maximum(scale / pixels_per_unit, 1.0)
 
 
 def _near(cands: JointCandidates, centre: np.ndarray, reach: float, count: int
@@ -448,7 +471,8 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
 
     t0 = time.perf_counter()
     r_min, r_max = joint_radii(solving, skeleton, vertices, weights)
-    problem = make_problem(drawing, solving, ppu, reference, params.costs)
+    problem = make_problem(drawing, solving, ppu, reference, params.costs,
+                           near_scales(camera, solving, world, ppu))
     if params.rigid_search:
         problem = replace(problem, interior=interior_joints(solving, r_max))
     eps = drawing.epsilon

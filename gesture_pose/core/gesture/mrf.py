@@ -208,6 +208,9 @@ class MatchProblem:
         reference: The joints in the view at the current pose, pixels, ``(J, 2)``.
         interior: Joints at the end of an interior bone (a clavicle inside the torso's
             outline, see :func:`interior_joints`), ``(J,)`` bool, or None.
+        near_scale: Largest view scale each joint's link can have through a perspective
+            camera over the character's scale (``pixels_per_unit`` of
+            :func:`make_problem`), ``(J,)`` (1 for orthographic views), or None.
     """
 
     drawing: Drawing
@@ -220,6 +223,7 @@ class MatchProblem:
     blocked: np.ndarray | None = None
     reference: np.ndarray | None = None
     interior: np.ndarray | None = None
+    near_scale: np.ndarray | None = None
 
     @property
     def rigid(self) -> np.ndarray:
@@ -239,16 +243,28 @@ class MatchProblem:
             return None
         return self.blocked[b]
 
-    def shortest(self, j: int) -> float | None:
-        """The length of joint ``j``'s bone seen in the view at the current pose, pixels.
+    def free_lengths(self, j: int) -> tuple[float, float] | None:
+        """Drawn lengths of joint ``j``'s bone that cost nothing in ``Cl``, pixels.
 
-        With ``view_lengths`` the length term accepts any drawn length between it and the
-        bone's full length (:func:`~.costs.length_cost`); None without (Eq. 2 as in the
-        paper).
+        With ``view_lengths`` the range runs between the bone's length seen in the view at
+        the current pose and its full length (:func:`~.costs.length_cost`); None without
+        (Eq. 2 as in the paper).
         """
         if not self.params.view_lengths:
             return None
-        return float(np.linalg.norm(self.link_offset[j]))
+        full, seen = float(self.link_length[j]), float(np.linalg.norm(self.link_offset[j]))
+        return min(full, seen), max(full, seen)
+
+    def nearest_length(self, j: int) -> float | None:
+        """Joint ``j``'s bone at the nearest depth it can come to, pixels, or None.
+
+        Up to it a bone drawn too long pays ``Cl`` with the lenient sigma
+        (``perspective_lengths``, :func:`~.costs.length_cost`); None for an orthographic
+        view or without ``perspective_lengths``.
+        """
+        if not self.params.perspective_lengths or self.near_scale is None:
+            return None
+        return float(self.link_length[j] * self.near_scale[j])
 
     def has_triplet(self, j: int) -> bool:
         """Whether joint ``j`` closes a triplet (two consecutive bone links)."""
@@ -282,7 +298,8 @@ def interior_joints(solving: SolvingSkeleton, radius: np.ndarray) -> np.ndarray:
 
 
 def make_problem(drawing: Drawing, solving: SolvingSkeleton, pixels_per_unit: float,
-                 reference: np.ndarray, params: CostParams | None = None) -> MatchProblem:
+                 reference: np.ndarray, params: CostParams | None = None,
+                 near_scale: np.ndarray | None = None) -> MatchProblem:
     """Expected lengths and bind angles of the joint tree, scaled to the drawing.
 
     Args:
@@ -291,6 +308,8 @@ def make_problem(drawing: Drawing, solving: SolvingSkeleton, pixels_per_unit: fl
         pixels_per_unit: View scale at the character.
         reference: Joints in the view at the current pose, pixels, ``(J, 2)``.
         params: Cost parameters.
+        near_scale: Largest view scale of each joint's link over ``pixels_per_unit``,
+            ``(J,)`` (see :func:`near_scales`), or None.
     """
     params = params or CostParams()
     par = solving.joint_parent
@@ -310,7 +329,23 @@ def make_problem(drawing: Drawing, solving: SolvingSkeleton, pixels_per_unit: fl
     offset = np.zeros((n, 2))
     offset[has] = reference[has] - reference[par[has]]
     return MatchProblem(drawing, solving, length, angle, solving.terminal, params, offset,
-                        reference=np.asarray(reference, float))
+                        reference=np.asarray(reference, float),
+                        near_scale=None if near_scale is None else np.asarray(near_scale,
+                                                                                float))
+
+
+def root_reach(solving: SolvingSkeleton) -> np.ndarray:
+    """Distance of each joint from the root along the skeleton at rest, world units, ``(J,)``.
+
+    The sum of the links (bones and rigid offsets) on the way from the root: however the
+    character is posed, the joint stays within this distance of the root. Joints are
+    numbered parents first (:func:`~.solving.build_solving_skeleton`).
+    """
+    par, rest = solving.joint_parent, solving.rest_joints
+    reach = np.zeros(solving.n_joints)
+    for j in np.flatnonzero(par >= 0):
+        reach[j] = reach[par[j]] + float(np.linalg.norm(rest[j] - rest[par[j]]))
+    return reach
 
 
 def link_table(problem: MatchProblem, j: int, a: JointCandidates,
@@ -323,7 +358,8 @@ def link_table(problem: MatchProblem, j: int, a: JointCandidates,
     return prior + pair_cost(problem.drawing, a.positions, a.radii, a.group, a.side,
                              b.positions, b.radii, b.group, b.side, problem.link_length[j],
                              problem.params, stations=stations,
-                             blocked=problem.bone_blocked(j), shortest=problem.shortest(j))
+                             blocked=problem.bone_blocked(j), free=problem.free_lengths(j),
+                             nearest=problem.nearest_length(j))
 
 
 def triplet_table(problem: MatchProblem, j: int, g: JointCandidates, p: JointCandidates,

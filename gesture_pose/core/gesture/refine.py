@@ -92,7 +92,8 @@ def _factor_energy(problem: MatchProblem, conf: JointCandidates, j: int,
         prior = direction_cost(pa, pb, problem.link_offset[child], prm)
         return prior + pair_cost(d, pa, ra, ga, sa, pb, rb, gb, sb, problem.link_length[child],
                                  prm, blocked=problem.bone_blocked(child),
-                                 shortest=problem.shortest(child))
+                                 free=problem.free_lengths(child),
+                                 nearest=problem.nearest_length(child))
 
     c1 = conf.take(np.arange(len(conf)))
     P, R, G, S = c1.positions, c1.radii, c1.group, c1.side
@@ -186,7 +187,8 @@ def _chain_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
             table = direction_cost(pa, pb, problem.link_offset[k], prm) + pair_cost(
                 d, pa, conf.radii[[p]], conf.group[[p]], conf.side[[p]], pb,
                 conf.radii[[k]], conf.group[[k]], conf.side[[k]], problem.link_length[k], prm,
-                blocked=problem.bone_blocked(k), shortest=problem.shortest(k))
+                blocked=problem.bone_blocked(k), free=problem.free_lengths(k),
+                nearest=problem.nearest_length(k))
         total += _per_trial(table, t)
     top = int(chain[0])
     for k in [top, *np.flatnonzero(par == top)]:
