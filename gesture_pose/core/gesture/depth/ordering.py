@@ -165,7 +165,7 @@ def ordering_rows(constraints: list[OrderingConstraint], forward: np.ndarray,
                             tuple(c.label for c in constraints))
 
 
-def _ancestors(joint_parent: np.ndarray, j: int) -> list[int]:
+def ancestors(joint_parent: np.ndarray, j: int) -> list[int]:
     """Joint ``j`` and its ancestors up to the root, nearest first."""
     out = [int(j)]
     while joint_parent[out[-1]] >= 0:
@@ -193,15 +193,17 @@ def drawn_as_bind(constraints: list[OrderingConstraint], joint_parent: np.ndarra
         keep: Smallest agreement of a link drawn as at bind.
 
     Returns:
-        Shape ``(k,)`` bool.
+        Shape ``(k,)`` bool (False for a constraint between separate trees).
     """
     parent = np.asarray(joint_parent, int)
     agree = np.asarray(link_agreement, float) >= keep
     out = np.zeros(len(constraints), bool)
     for i, c in enumerate(constraints):
         joints = {int(j) for j in (*c.back, *c.front)}
-        chains = [_ancestors(parent, j) for j in joints]
+        chains = [ancestors(parent, j) for j in joints]
         common = set.intersection(*(set(ch) for ch in chains))
+        if not common:
+            continue  # parts of separate trees (a prop): no chain of links between them
         # Links below the deepest common ancestor on every chain (child joints).
         links = {j for ch in chains for j in ch[:next(k for k, a in enumerate(ch)
                                                         if a in common)]}

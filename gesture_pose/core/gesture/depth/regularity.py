@@ -30,6 +30,7 @@ from ...names import side_of
 from ..solving import mirror_name
 from ..types import Embedding2D, SolvingSkeleton
 from .energies import LinearTerm, ViewFrame
+from .ordering import ancestors
 from .qp import LinearConstraint
 
 
@@ -314,10 +315,11 @@ def spine_chain(solving: SolvingSkeleton) -> np.ndarray:
     """
     jp = np.asarray(solving.joint_parent, int)
     size = np.ones(len(jp), int)
-    for j in np.argsort([len(_path(jp, j)) for j in range(len(jp))])[::-1]:
+    for j in np.argsort([len(ancestors(jp, j)) for j in range(len(jp))])[::-1]:
         if jp[j] >= 0:
             size[jp[j]] += size[j]
-    chain = [int(np.flatnonzero(jp < 0)[0])] if len(jp) else []
+    # The body's root: the root of the largest tree (a prop can be a separate tree).
+    chain = [int(max(np.flatnonzero(jp < 0), key=lambda r: size[r]))] if len(jp) else []
     while chain:
         kids = [int(k) for k in np.flatnonzero(jp == chain[-1])
                 if side_of(solving.joint_bones[k].rpartition(" ")[0]) is None]
@@ -327,14 +329,6 @@ def spine_chain(solving: SolvingSkeleton) -> np.ndarray:
         if np.sum(jp == chain[-1]) != 1:
             break
     return np.asarray(chain, int)
-
-
-def _path(joint_parent: np.ndarray, j: int) -> list[int]:
-    """Joint ``j`` and its ancestors."""
-    out = [int(j)]
-    while joint_parent[out[-1]] >= 0:
-        out.append(int(joint_parent[out[-1]]))
-    return out
 
 
 def spine_runs(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.ndarray,
