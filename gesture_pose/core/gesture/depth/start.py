@@ -5,7 +5,8 @@ which side. The start aims every solving bone at its drawn direction, lifted by 
 amount, on the bind pose's side when the bone clearly has one (depth slope above 0.3) and
 is drawn within 45 degrees of its bind direction and near its bind image, else towards
 the character's front (its ``.L`` side is its own left), or towards the viewer when the
-front is not clear (a side view); the rig's limits and the rest bend of knees and elbows
+front is not clear (a side view), except for a bone drawn as its parents carry it from the
+bind pose (:func:`carried_sides`); the rig's limits and the rest bend of knees and elbows
 decide the bones at those joints (:func:`hinge_signs`); then sides that break
 depth-order constraints are flipped greedily. When the
 drawing shows the character turned around (its left and right hips or shoulders swapped
@@ -191,6 +192,60 @@ def _within(rotvec: np.ndarray, limits: np.ndarray, tol: float = 1e-3) -> bool:
     return bool(np.all((rotvec[lim] >= lo[lim] - tol) & (rotvec[lim] <= hi[lim] + tol)))
 
 
+def carried_sides(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
+                  embedding: Embedding2D, bind: Pose, signs: np.ndarray, fixed: np.ndarray,
+                  open_: np.ndarray, max_angle: float = np.radians(10.0),
+                  min_lift: float = 0.1) -> np.ndarray:
+    """Depth sides of bones drawn as their parents carry them (ours).
+
+    A bone whose parents turned while its own joint did not (a forearm following its
+    raised upper arm) is drawn along its bind direction carried by the parents' start
+    rotations. When exactly one of its two depth sides lies within ``max_angle`` of that
+    direction, that side is the bone's: its bind side relative to its parent, which the
+    default guess (the character's front) would otherwise replace. Bones are aimed in
+    order, parents first, as in :func:`lifted_pose`. Only bones in ``open_`` that leave
+    the view plane by at least ``min_lift`` of their length are decided.
+
+    Args:
+        skeleton: The full skeleton.
+        jmap: Joint map of the solving skeleton.
+        frame: The view.
+        embedding: The 2D embedding.
+        bind: The bind pose.
+        signs: Depth side of each solving bone so far (+1 away from the viewer), ``(m,)``.
+        fixed: Solving bones left at their bind rotation, ``(m,)`` bool.
+        open_: Solving bones whose side is still a guess, ``(m,)`` bool.
+        max_angle: Largest angle between a side and the carried bind direction, radians.
+        min_lift: Smallest depth change over length of a decided bone.
+
+    Returns:
+        The sides, ``(m,)``.
+    """
+    signs = np.asarray(signs, float).copy()
+    pose = bind
+    for k, bone in enumerate(jmap.bones):
+        if fixed[k]:
+            continue
+        bone = int(bone)
+        drawn, depth = _drawn_link(skeleton, embedding, frame, k, bone)
+        length = skeleton.lengths[bone]
+        state = skeleton.forward(pose)
+        if open_[k] and depth >= min_lift * length:
+            carried = state.tails[bone] - state.heads[bone]
+            cos = [float(_direction(frame, drawn, sign * depth) @ carried)
+                   / max(length * float(np.linalg.norm(carried)), 1e-12)
+                   for sign in (1.0, -1.0)]
+            near = [c >= np.cos(max_angle) for c in cos]
+            if near[0] != near[1]:
+                signs[k] = 1.0 if near[0] else -1.0
+        direction = _direction(frame, drawn, signs[k] * depth)
+        if np.linalg.norm(direction) < 1e-9 * length:
+            continue
+        rot = skeleton.aim_local(bone, direction, state, pose.rotations[bone])
+        pose = pose.with_rotations(np.array([bone]), rot[None])
+    return signs
+
+
 def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                 embedding: Embedding2D, bind: Pose, signs: np.ndarray, fixed: np.ndarray,
                 ik_limits: np.ndarray | None = None, natural_bend: bool = True,
@@ -295,8 +350,8 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                facing: float = 1.0, bind_turn: float = np.radians(45.0),
                keep: np.ndarray | None = None, ik_limits: np.ndarray | None = None,
                natural_bend: bool = False, limit_axes: np.ndarray | None = None,
-               agreement: np.ndarray | None = None, min_agreement: float = 0.1
-               ) -> tuple[Pose, np.ndarray]:
+               agreement: np.ndarray | None = None, min_agreement: float = 0.1,
+               carried_turn: float = 0.0) -> tuple[Pose, np.ndarray]:
     """The lifted start pose and the depth side of each solving bone.
 
     Args:
@@ -324,6 +379,9 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
             :func:`.energies.bind_agreement` of its link, ``(m,)`` (optional).
         min_agreement: Smallest ``agreement`` for the bind pose's side to be kept: a bone
             drawn far from its bind image has moved, and its bind side says little.
+        carried_turn: Bones drawn within this angle of their bind direction carried by
+            their parents keep that side (:func:`carried_sides`), radians; 0 leaves them
+            to the default.
 
     Returns:
         ``(pose, signs)``: the start pose and the sides, ``(m,)``.
@@ -348,6 +406,9 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     if agreement is not None:
         kept &= np.asarray(agreement, float) >= min_agreement
     signs = np.where(kept, facing * np.sign(bind_slope), default)
+    if carried_turn > 0.0:
+        signs = carried_sides(skeleton, jm, f, embedding, bind, signs, fixed, ~kept,
+                              carried_turn)
     if natural_bend or (ik_limits is not None and np.any(np.isfinite(ik_limits))):
         signs = hinge_signs(skeleton, jm, f, embedding, bind, signs, fixed, ik_limits,
                             natural_bend, limit_axes=limit_axes)
