@@ -175,3 +175,9 @@ def test_near_scales_follow_the_distance_from_the_root():
     ortho = front_camera(ortho=True)
     np.testing.assert_allclose(near_scales(ortho, sol, world, ortho.pixels_per_unit(6.0)),
                                1.0)
+    # A second tree (a prop) 1 m nearer is measured from its own root.
+    from dataclasses import replace as dc_replace
+    two = dc_replace(sol, joint_parent=np.array([-1, 0, -1]))
+    moved = world + np.array([[0, 0, 0], [0, 0, 0], [0, -1.0, 0]])
+    got = near_scales(cam, two, moved, ppu)
+    np.testing.assert_allclose(got[2], 6.0 / 5.0, rtol=1e-6)

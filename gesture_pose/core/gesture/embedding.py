@@ -126,7 +126,7 @@ def near_scales(camera: Camera, solving: SolvingSkeleton, world: np.ndarray,
                 pixels_per_unit: float) -> np.ndarray:
     """Largest view scale of each joint's link over the character's scale, ``(J,)``.
 
-    A joint stays within its distance along the skeleton from the root
+    A joint stays within its distance along the skeleton from its root
     (:func:`~.mrf.root_reach`), so its link can come no nearer than the root's depth less
     that distance (and no nearer than half the character's depth): through a perspective
     camera it can look that much longer. 1 for orthographic cameras.
@@ -138,8 +138,11 @@ def near_scales(camera: Camera, solving: SolvingSkeleton, world: np.ndarray,
         pixels_per_unit: The character's view scale (at its mean depth).
     """
     depth = camera.depth(world)
-    root = int(np.flatnonzero(solving.joint_parent < 0)[0])
-    nearest = np.maximum(depth[root] - root_reach(solving), 0.5 * float(np.mean(depth)))
+    par = solving.joint_parent
+    top = np.arange(len(par))  # each joint's root (a prop can be a separate tree)
+    for j in np.flatnonzero(par >= 0):  # parents are numbered first
+        top[j] = top[par[j]]
+    nearest = np.maximum(depth[top] - root_reach(solving), 0.5 * float(np.mean(depth)))
     scale = np.array([camera.pixels_per_unit(float(z)) for z in nearest])
     return np.maximum(scale / pixels_per_unit, 1.0)
 
