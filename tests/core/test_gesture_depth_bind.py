@@ -279,16 +279,22 @@ def test_natural_bend_holds_on_the_joint_skeleton_of_a_token_rig():
     assert results["joints"] == pytest.approx(results["tails"], abs=0.05)
 
 
+def _away_forearm_tree() -> Skeleton:
+    """:func:`_turned_tree` with the right forearm pointing away from the viewer at bind
+    (depth slope +0.6)."""
+    base = _turned_tree()
+    tails = base.rest_tails.copy()
+    tails[5] = [-1.0, 0.3, 1.05]
+    return replace(base, rest_tails=tails, rest_frames=np.stack(
+        [frame_along(t - h, 0.2 * i) for i, (h, t) in enumerate(zip(base.rest_heads, tails,
+                                                                     strict=True))]))
+
+
 def test_a_limb_drawn_moved_keeps_the_start_side_against_its_bind_depth():
     """A forearm that points away from the viewer at bind, drawn turned 60 degrees down in
     the image (a reach seen obliquely): the start puts it on the character's front, and
     E_v's reference keeps it there instead of pulling it back to the bind side."""
-    base = _turned_tree()
-    tails = base.rest_tails.copy()
-    tails[5] = [-1.0, 0.3, 1.05]  # away from the viewer at bind (depth slope +0.6)
-    sk = replace(base, rest_tails=tails, rest_frames=np.stack(
-        [frame_along(t - h, 0.2 * i) for i, (h, t) in enumerate(zip(base.rest_heads, tails,
-                                                                     strict=True))]))
+    sk = _away_forearm_tree()
     s = solving_skeleton(sk)
     cam = front_camera(ortho=True)
     truth = Pose.identity(6)
@@ -389,12 +395,7 @@ def test_a_limb_drawn_near_its_bind_direction_but_moved_takes_the_default_side()
     """The forearm of the previous test turned only 30 degrees down in the image: within
     45 degrees of its bind direction, but 0.2 units from its bind image, so it has moved
     and its bind side (away) is not kept; the character's front (towards the viewer) is."""
-    base = _turned_tree()
-    tails = base.rest_tails.copy()
-    tails[5] = [-1.0, 0.3, 1.05]
-    sk = replace(base, rest_tails=tails, rest_frames=np.stack(
-        [frame_along(t - h, 0.2 * i) for i, (h, t) in enumerate(zip(base.rest_heads, tails,
-                                                                     strict=True))]))
+    sk = _away_forearm_tree()
     s = solving_skeleton(sk)
     cam = front_camera(ortho=True)
     truth = Pose.identity(6)
@@ -410,17 +411,6 @@ def test_a_limb_drawn_near_its_bind_direction_but_moved_takes_the_default_side()
     # Measured: -0.30 (the truth) against +0.30 keeping the bind side.
     assert depth[0.1] == pytest.approx(-0.3, abs=0.02)
     assert depth[0.0] > 0.2
-
-
-def _away_forearm_tree() -> Skeleton:
-    """:func:`_turned_tree` with the right forearm pointing away from the viewer at bind
-    (depth slope +0.6)."""
-    base = _turned_tree()
-    tails = base.rest_tails.copy()
-    tails[5] = [-1.0, 0.3, 1.05]
-    return replace(base, rest_tails=tails, rest_frames=np.stack(
-        [frame_along(t - h, 0.2 * i) for i, (h, t) in enumerate(zip(base.rest_heads, tails,
-                                                                     strict=True))]))
 
 
 def _turned_about_world(sk: Skeleton, pose: Pose, bone: int, axis: np.ndarray,
