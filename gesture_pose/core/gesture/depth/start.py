@@ -18,11 +18,13 @@ Starting lifted matters: from a flat pose the linearized projection cannot short
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from ...names import side_of
 from ...rotations import log_map
-from ...skeleton import Pose, Skeleton
+from ...skeleton import Pose, PoseState, Skeleton
 from ..solving import symmetric_joint_pairs
 from ..types import Embedding2D, SolvingSkeleton
 from . import twist
@@ -171,18 +173,54 @@ def lifted_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     Returns:
         The lifted pose.
     """
+    return _aim_in_order(skeleton, jmap, frame, embedding, bind, signs, fixed)[0]
+
+
+#: ``decide(k, bone, drawn, depth, state, pose)``: the side of solving bone ``k`` (full
+#: skeleton index ``bone``, drawn as ``drawn`` view units with ``depth`` out of the view
+#: plane) in ``pose`` (its parents aimed, forward ``state``), or None to keep it.
+Decide = Callable[[int, int, np.ndarray, float, PoseState, Pose], "float | None"]
+
+
+def _aim_in_order(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
+                  embedding: Embedding2D, bind: Pose, signs: np.ndarray, fixed: np.ndarray,
+                  decide: Decide | None = None) -> tuple[Pose, np.ndarray]:
+    """Aim the solving bones at their drawn directions, parents first, from the bind pose.
+
+    Each bone not ``fixed`` is aimed on its depth side; ``decide`` may first choose that
+    side, seeing the pose its parents were aimed to.
+
+    Args:
+        skeleton: The full skeleton.
+        jmap: Joint map of the solving skeleton.
+        frame: The view.
+        embedding: The 2D embedding.
+        bind: The bind pose.
+        signs: Depth side of each solving bone so far (+1 away from the viewer), ``(m,)``.
+        fixed: Solving bones left at their bind rotation, ``(m,)`` bool.
+        decide: Chooses sides on the way (None: ``signs`` as given).
+
+    Returns:
+        ``(pose, signs)``: the lifted pose and the sides, ``(m,)``.
+    """
+    signs = np.asarray(signs, float).copy()
     pose = bind
     for k, bone in enumerate(jmap.bones):
         if fixed[k]:
             continue
+        bone = int(bone)
         drawn, depth = _drawn_link(skeleton, embedding, frame, k, bone)
-        direction = _direction(frame, drawn, depth * signs[k])
+        state = skeleton.forward(pose)
+        if decide is not None:
+            side = decide(k, bone, drawn, depth, state, pose)
+            if side is not None:
+                signs[k] = side
+        direction = _direction(frame, drawn, signs[k] * depth)
         if np.linalg.norm(direction) < 1e-9 * skeleton.lengths[bone]:
             continue
-        state = skeleton.forward(pose)
-        rot = skeleton.aim_local(int(bone), direction, state, pose.rotations[bone])
+        rot = skeleton.aim_local(bone, direction, state, pose.rotations[bone])
         pose = pose.with_rotations(np.array([bone]), rot[None])
-    return pose
+    return pose, signs
 
 
 def _within(rotvec: np.ndarray, limits: np.ndarray, tol: float = 1e-3) -> bool:
@@ -221,29 +259,20 @@ def carried_sides(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     Returns:
         The sides, ``(m,)``.
     """
-    signs = np.asarray(signs, float).copy()
-    pose = bind
-    for k, bone in enumerate(jmap.bones):
-        if fixed[k]:
-            continue
-        bone = int(bone)
-        drawn, depth = _drawn_link(skeleton, embedding, frame, k, bone)
+    def decide(k: int, bone: int, drawn: np.ndarray, depth: float, state: PoseState,
+               pose: Pose) -> float | None:
         length = skeleton.lengths[bone]
-        state = skeleton.forward(pose)
-        if open_[k] and depth >= min_lift * length:
-            carried = state.tails[bone] - state.heads[bone]
-            cos = [float(_direction(frame, drawn, sign * depth) @ carried)
-                   / max(length * float(np.linalg.norm(carried)), 1e-12)
-                   for sign in (1.0, -1.0)]
-            near = [c >= np.cos(max_angle) for c in cos]
-            if near[0] != near[1]:
-                signs[k] = 1.0 if near[0] else -1.0
-        direction = _direction(frame, drawn, signs[k] * depth)
-        if np.linalg.norm(direction) < 1e-9 * length:
-            continue
-        rot = skeleton.aim_local(bone, direction, state, pose.rotations[bone])
-        pose = pose.with_rotations(np.array([bone]), rot[None])
-    return signs
+        if not (open_[k] and depth >= min_lift * length):
+            return None
+        carried = state.tails[bone] - state.heads[bone]
+        cos = [float(_direction(frame, drawn, sign * depth) @ carried)
+               / max(length * float(np.linalg.norm(carried)), 1e-12) for sign in (1.0, -1.0)]
+        near = [c >= np.cos(max_angle) for c in cos]
+        if near[0] == near[1]:
+            return None
+        return 1.0 if near[0] else -1.0
+
+    return _aim_in_order(skeleton, jmap, frame, embedding, bind, signs, fixed, decide)[1]
 
 
 def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
@@ -288,7 +317,6 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         The sides, ``(m,)``.
     """
     s = embedding.solving
-    signs = np.asarray(signs, float).copy()
     solving = set(int(b) for b in jmap.bones)
     rest_dir = skeleton.rest_tails - skeleton.rest_heads
     rest_dir = rest_dir / np.maximum(np.linalg.norm(rest_dir, axis=1, keepdims=True), 1e-12)
@@ -299,49 +327,40 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     hinge = np.array([bool(skeleton.connected[b]) and has_child[k]
                       and side_of(skeleton.names[b]) is not None
                       for k, b in enumerate(jmap.bones)])
-    pose = bind
-    for k, bone in enumerate(jmap.bones):
-        if fixed[k]:
-            continue
-        bone = int(bone)
-        drawn, depth = _drawn_link(skeleton, embedding, frame, k, bone)
-        length = skeleton.lengths[bone]
-        state = skeleton.forward(pose)
+
+    def decide(k: int, bone: int, drawn: np.ndarray, depth: float, state: PoseState,
+               pose: Pose) -> float | None:
         parent = int(skeleton.parents[bone])
-        if depth >= min_lift * length and parent in solving:
-            cands = [_direction(frame, drawn, sign * depth) for sign in (1.0, -1.0)]
-            decided = False
-            if ik_limits is not None and np.any(np.isfinite(ik_limits[bone])):
-                rotvecs = log_map(np.stack([skeleton.aim_local(bone, c, state,
-                                                               pose.rotations[bone])
-                                            for c in cands]))
-                if limit_axes is not None:
-                    rotvecs = rotvecs @ limit_axes[bone]
-                ok = [_within(r, ik_limits[bone]) for r in rotvecs]
-                if ok[0] != ok[1]:
-                    signs[k], decided = (1.0 if ok[0] else -1.0), True
-            axis = np.cross(rest_dir[parent], rest_dir[bone])
-            if (not decided and natural_bend and hinge[k]
-                    and np.linalg.norm(axis) >= np.sin(min_bend)):
-                world = state.frames[parent] @ skeleton.rest_frames[parent].T
-                u = state.tails[parent] - state.heads[parent]
-                hinge_axis = world @ axis
-                score = [float(np.cross(u, c) @ hinge_axis) for c in cands]
-                if score[0] * score[1] < 0:
-                    signs[k] = 1.0 if score[0] > 0 else -1.0
-                elif min(score) > 0.0:
-                    # Both sides bend the natural way (the parent points along the view):
-                    # the one nearer the hinge's plane of flexion.
-                    off = [abs(float(c @ hinge_axis)) / max(float(np.linalg.norm(c)
-                           * np.linalg.norm(hinge_axis)), 1e-12) for c in cands]
-                    if abs(off[0] - off[1]) >= min_off:
-                        signs[k] = 1.0 if off[0] < off[1] else -1.0
-        direction = _direction(frame, drawn, signs[k] * depth)
-        if np.linalg.norm(direction) < 1e-9 * length:
-            continue
-        rot = skeleton.aim_local(bone, direction, state, pose.rotations[bone])
-        pose = pose.with_rotations(np.array([bone]), rot[None])
-    return signs
+        if depth < min_lift * skeleton.lengths[bone] or parent not in solving:
+            return None
+        cands = [_direction(frame, drawn, sign * depth) for sign in (1.0, -1.0)]
+        if ik_limits is not None and np.any(np.isfinite(ik_limits[bone])):
+            rotvecs = log_map(np.stack([skeleton.aim_local(bone, c, state, pose.rotations[bone])
+                                        for c in cands]))
+            if limit_axes is not None:
+                rotvecs = rotvecs @ limit_axes[bone]
+            ok = [_within(r, ik_limits[bone]) for r in rotvecs]
+            if ok[0] != ok[1]:
+                return 1.0 if ok[0] else -1.0
+        axis = np.cross(rest_dir[parent], rest_dir[bone])
+        if not (natural_bend and hinge[k] and np.linalg.norm(axis) >= np.sin(min_bend)):
+            return None
+        world = state.frames[parent] @ skeleton.rest_frames[parent].T
+        u = state.tails[parent] - state.heads[parent]
+        hinge_axis = world @ axis
+        score = [float(np.cross(u, c) @ hinge_axis) for c in cands]
+        if score[0] * score[1] < 0:
+            return 1.0 if score[0] > 0 else -1.0
+        if min(score) > 0.0:
+            # Both sides bend the natural way (the parent points along the view): the one
+            # nearer the hinge's plane of flexion.
+            off = [abs(float(c @ hinge_axis)) / max(float(np.linalg.norm(c)
+                   * np.linalg.norm(hinge_axis)), 1e-12) for c in cands]
+            if abs(off[0] - off[1]) >= min_off:
+                return 1.0 if off[0] < off[1] else -1.0
+        return None
+
+    return _aim_in_order(skeleton, jmap, frame, embedding, bind, signs, fixed, decide)[1]
 
 
 def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
