@@ -250,15 +250,15 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     dq, owner = drawing.lookup(q)
     grp = drawing.group[owner]
     own = (grp == ga[:, None, None]) | (grp == gb[None, :, None])
-    # The contour must run across the axis: its tangent line at the nearest sample meets
-    # the axis within a step of the station. An outline running along the axis (a part
-    # thinner than a step, such as a hand seen edge-on) is near it but not crossed.
-    normal = drawing.normals[owner]
-    off = np.abs(np.einsum("abtd,abtd->abt", q - drawing.points[owner], normal))
-    across = off < eps * np.abs(np.einsum("abtd,abd->abt", normal, u))
-    if not params.transverse_crossings:
-        across = True
-    cc = ((dq < 0.5 * eps) & own & across).any(axis=2).astype(float)
+    crossed = (dq < 0.5 * eps) & own
+    if params.transverse_crossings:
+        # The contour must run across the axis: its tangent line at the nearest sample
+        # meets the axis within a step of the station. An outline running along the axis
+        # (a part thinner than a step, such as a hand seen edge-on) is near but not crossed.
+        normal = drawing.normals[owner]
+        off = np.abs(np.einsum("abtd,abtd->abt", q - drawing.points[owner], normal))
+        crossed &= off < eps * np.abs(np.einsum("abtd,abd->abt", normal, u))
+    cc = crossed.any(axis=2).astype(float)
     same = (ga[:, None] == gb[None, :]) & (ga[:, None] >= 0)
     opposite = same & (sa[:, None] * sb[None, :] < 0)
     cc = np.maximum(cc, opposite.astype(float))

@@ -309,7 +309,7 @@ def make_problem(drawing: Drawing, solving: SolvingSkeleton, pixels_per_unit: fl
         reference: Joints in the view at the current pose, pixels, ``(J, 2)``.
         params: Cost parameters.
         near_scale: Largest view scale of each joint's link over ``pixels_per_unit``,
-            ``(J,)`` (see :func:`near_scales`), or None.
+            ``(J,)`` (see :func:`~.embedding.near_scales`), or None.
     """
     params = params or CostParams()
     par = solving.joint_parent
