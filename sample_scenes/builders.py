@@ -498,7 +498,7 @@ def _world_bounds(target: bpy.types.Object) -> np.ndarray:
     return np.array([tuple(p) for p in pts]) if pts else np.array([tuple(target.location)])
 
 
-def add_camera(target: bpy.types.Object | Sequence[float],
+def add_camera(target: bpy.types.Object | Sequence[float] | np.ndarray,
                direction: Sequence[float] = (0.0, -1.0, 0.0), distance: float | None = None,
                lens: float = 50.0, ortho: bool = False,
                resolution: tuple[int, int] = (960, 960), margin: float = 1.15,
@@ -506,7 +506,9 @@ def add_camera(target: bpy.types.Object | Sequence[float],
     """Add a camera looking at a character or point and make it the scene camera.
 
     Args:
-        target: An object (framed with its children) or a world-space point.
+        target: An object (framed with its children and its armature's rest bones), a
+            world-space point, or world-space points ``(n, 3)`` to frame (e.g. a posed
+            character's deformed vertices).
         direction: From the target toward the camera; ``(0, -1, 0)`` is the front view.
         distance: Camera distance from the target centre; None fits the target.
         lens: Focal length in mm (sensor width 36 mm, fit AUTO).
@@ -526,8 +528,8 @@ def add_camera(target: bpy.types.Object | Sequence[float],
         pts = _world_bounds(target)
         centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
     else:
-        centre = np.asarray(target, dtype=float)
-        pts = centre[None, :]
+        pts = np.atleast_2d(np.asarray(target, dtype=float))
+        centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
     back = np.asarray(direction, dtype=float)
     back /= np.linalg.norm(back)
     quat = Vector(tuple(-back)).to_track_quat('-Z', 'Y')
