@@ -103,9 +103,10 @@ def circle_alignment(drawing: Drawing, centres: np.ndarray, radii: np.ndarray,
     centres = np.asarray(centres, float).reshape(-1, 2)
     radii = np.broadcast_to(np.asarray(radii, float), (len(centres),))
     tol = np.minimum(drawing.epsilon, radii / 2.0)
-    q = centres[:, None, :] + radii[:, None, None] * u[None]
-    dist, owner = drawing.lookup(q)
-    cos = np.abs(np.einsum("kmd,md->km", drawing.normals[owner], u))
+    x = centres[:, 0, None] + radii[:, None] * u[:, 0]
+    y = centres[:, 1, None] + radii[:, None] * u[:, 1]
+    dist, owner = drawing.lookup_xy(x, y)
+    cos = np.abs(drawing.normals[owner, 0] * u[:, 0] + drawing.normals[owner, 1] * u[:, 1])
     ok = (dist <= tol[:, None]) & (cos > np.cos(params.alpha))
     return np.where(ok, owner, -1)
 
@@ -228,26 +229,30 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     d = pb[None, :, :] - pa[:, None, :]
     dist = np.linalg.norm(d, axis=2)
     u = d / np.maximum(dist, 1e-9)[..., None]
-    perp = np.stack([-u[..., 1], u[..., 0]], axis=-1)
     cl = length_cost(dist, length, params.sigma_length * drawing.diagonal, free, nearest)
+    # Coordinates apart, (Ka, Kb, stations) each: numpy is slow on a last axis of 2.
+    ux, uy = u[..., 0, None], u[..., 1, None]
+    dx, dy = d[..., 0, None], d[..., 1, None]
+    pax, pay = pa[:, None, None, 0], pa[:, None, None, 1]
+    nx, ny = drawing.normals[:, 0], drawing.normals[:, 1]
     t = (np.arange(stations) + 0.5) / stations
-    axis = pa[:, None, None, :] + t[None, None, :, None] * d[:, :, None, :]
+    ax, ay = pax + t * dx, pay + t * dy
     r_t = (1.0 - t)[None, None, :] * ra[:, None, None] + t[None, None, :] * rb[None, :, None]
     tol = np.maximum(eps, 0.5 * r_t)
     sin_max = np.sin(params.conform_angle)
     cover = []
     for sign in (1.0, -1.0):
-        q = axis + sign * r_t[..., None] * perp[:, :, None, :]
-        dq, owner = drawing.lookup(q)
-        along = np.abs(np.einsum("abtd,abd->abt", drawing.normals[owner], u))
+        off = sign * r_t
+        dq, owner = drawing.lookup_xy(ax + off * -uy, ay + off * ux)
+        along = np.abs(nx[owner] * ux + ny[owner] * uy)
         ok = (dq <= tol) & (along < sin_max)
         if blocked is not None:
             ok &= ~blocked[owner]
-        cover.append(ok.mean(axis=2))
+        cover.append(np.count_nonzero(ok, axis=2) / stations)
     ccf = 1.0 - 0.5 * (cover[0] + cover[1])
     ta = crossing_stations(dist, ra, rb, eps)
-    q = pa[:, None, None, :] + ta[..., None] * d[:, :, None, :]
-    dq, owner = drawing.lookup(q)
+    qx, qy = pax + ta * dx, pay + ta * dy
+    dq, owner = drawing.lookup_xy(qx, qy)
     grp = drawing.group[owner]
     own = (grp == ga[:, None, None]) | (grp == gb[None, :, None])
     crossed = (dq < 0.5 * eps) & own
@@ -255,9 +260,10 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
         # The contour must run across the axis: its tangent line at the nearest sample
         # meets the axis within a step of the station. An outline running along the axis
         # (a part thinner than a step, such as a hand seen edge-on) is near but not crossed.
-        normal = drawing.normals[owner]
-        off = np.abs(np.einsum("abtd,abtd->abt", q - drawing.points[owner], normal))
-        crossed &= off < eps * np.abs(np.einsum("abtd,abd->abt", normal, u))
+        mx, my = nx[owner], ny[owner]
+        pts = drawing.points[owner]
+        off = np.abs((qx - pts[..., 0]) * mx + (qy - pts[..., 1]) * my)
+        crossed &= off < eps * np.abs(mx * ux + my * uy)
     cc = crossed.any(axis=2).astype(float)
     same = (ga[:, None] == gb[None, :]) & (ga[:, None] >= 0)
     opposite = same & (sa[:, None] * sb[None, :] < 0)

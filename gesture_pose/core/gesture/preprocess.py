@@ -10,6 +10,7 @@ flipped per stroke so that they agree along bridged contours.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy.ndimage import distance_transform_edt
@@ -92,13 +93,29 @@ class Drawing:
         Returns:
             ``(distance (...), sample (...))``; points outside the field get ``inf``.
         """
-        g = np.floor((np.asarray(points, float) - self.field_origin) / self.field_cell + 0.5)
+        points = np.asarray(points, float)
+        return self.lookup_xy(points[..., 0], points[..., 1])
+
+    def lookup_xy(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`lookup` with the coordinates apart, ``x, y (...)`` pixels.
+
+        Points outside the field read a sentinel cell past the field's end (distance
+        ``inf``, the owner of the last cell), so one gather serves every point.
+        """
         h, w = self.field_dist.shape
-        ix, iy = g[..., 0].astype(np.int64), g[..., 1].astype(np.int64)
+        ix = np.floor((x - self.field_origin[0]) / self.field_cell + 0.5).astype(np.int64)
+        iy = np.floor((y - self.field_origin[1]) / self.field_cell + 0.5).astype(np.int64)
         inside = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
-        ix, iy = np.clip(ix, 0, w - 1), np.clip(iy, 0, h - 1)
-        dist = np.where(inside, self.field_dist[iy, ix], np.inf)
-        return dist, self.field_owner[iy, ix]
+        flat = np.where(inside, iy * w + ix, h * w)
+        dist, owner = self._flat_field
+        return dist[flat], owner[flat]
+
+    @cached_property
+    def _flat_field(self) -> tuple[np.ndarray, np.ndarray]:
+        """The distance field and its owners flattened, a sentinel cell appended."""
+        dist = np.append(self.field_dist.ravel(), np.inf)
+        owner = self.field_owner.ravel()
+        return dist, np.append(owner, owner[-1])
 
     def stroke_samples(self, k: int) -> np.ndarray:
         """Samples of stroke ``k``, shape ``(n_k, 2)``."""
