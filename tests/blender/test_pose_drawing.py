@@ -137,10 +137,14 @@ def _traced(kind: str, pose_name: str, direction):
 # (signs 22/22, 14/15, 21/23). Each Pose must also beat leaving the bind pose; the
 # quadruped's lifted paw does not (its 2D fit draws the right front leg where the lifted
 # left one is: 4.9 against 2.2), an expected failure; with the 2D fit in progress on
-# 2026-11-22 it measures 1.1 and this expectation is to become an assertion.
+# 2026-11-22 it measures 1.1 and this expectation is to become an assertion. The 3D step
+# without the same-direction rule on the spine (DepthOptions.spine_parallel; exact
+# embeddings: CMU poses 8.0 -> 7.3 % of the height, the sample characters unchanged) reads
+# the crouch's leaning torso from its traced, noisy spine less well: 12.5 -> 14.2 (12.7
+# with the rule), still far better than the bind pose (17.5); limit 13.5 -> 15.
 @pytest.mark.parametrize(
     ("kind", "pose_name", "direction", "limit"),
-    [("humanoid", "crouch", (0.5, -1.0, 0.2), 13.5), ("humanoid", "step", (0.5, -1.0, 0.2), 10.0),
+    [("humanoid", "crouch", (0.5, -1.0, 0.2), 15.0), ("humanoid", "step", (0.5, -1.0, 0.2), 10.0),
      pytest.param("quadruped", "paw_forward", (1.0, -0.6, 0.2), 10.0, marks=pytest.mark.xfail(
          strict=True, reason="issue 4: the Pose of the oblique lifted paw is worse than the "
          "bind pose (4.9 against 2.2 % of the height): its 2D fit puts the right front leg "
@@ -181,11 +185,14 @@ def _against_bind(solving, bind, truth, got_pose, cam) -> tuple[float, float, fl
 # the 96 drawings measured for them, clean and perturbed, docs/gesture.md): throw 11.8
 # (bind pose 16.4, ratio 0.72), signs 3/13 (the bind pose's 4/13: the depth-sign check no
 # longer holds), lunge 12.6 (18.7, ratio 0.67); the whole-Pose bench's 25 drawings 7.56 ->
-# 7.79.
+# 7.79. With the 3D step reading a perspective view through its rays
+# (DepthOptions.perspective; exact embeddings of the sample characters 4.54 -> 4.11 % of
+# the height, of the CMU poses 8.90 -> 7.32): throw 11.8 -> 11.5 (ratio 0.70), lunge 12.6
+# -> 13.5 (ratio 0.67 -> 0.72; 12.6 without the rays); lunge limit 0.7 -> 0.75.
 # The limits follow that measurement: single far drawings move with the 2D fit's search.
 @pytest.mark.parametrize(
     ("pose_name", "direction", "max_ratio"),
-    [("throw", FRONT, 0.75), ("lunge", FRONT, 0.7)],
+    [("throw", FRONT, 0.75), ("lunge", FRONT, 0.75)],
 )
 def test_whole_pose_beats_the_bind_pose_far_from_it(registered, pose_name, direction,
                                                      max_ratio):
@@ -233,7 +240,9 @@ def test_ik_limits_set_on_pose_bones_restrict_the_pose(registered, monkeypatch):
     i = bind.skeleton.index("forearm.L")
     free = pose_drawing.pose_from_drawing(arm, sketch, cam, insert_keys=False,
                                           show_fit=False)
-    assert np.abs(log_map(free.result.pose.rotations[i][None])[0]).max() > 0.3  # 25 deg
+    # The known pose twists the forearm by 25 degrees (0.44 rad); the free solve turns it
+    # by 0.295 rad (0.30 before the view rays), well beyond the limit of 0.1 set below.
+    assert np.abs(log_map(free.result.pose.rotations[i][None])[0]).max() > 0.25
     pb = arm.pose.bones["forearm.L"]
     for ax in "xyz":
         setattr(pb, f"use_ik_limit_{ax}", True)

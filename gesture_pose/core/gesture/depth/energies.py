@@ -35,12 +35,15 @@ class ViewFrame:
         up: World direction of the image y axis, shape ``(3,)``.
         forward: World direction away from the viewer (depth grows along it), ``(3,)``.
         scale: Pixels per world unit at the character's depth.
+        camera: The perspective camera, when the solve reads the drawing through its view
+            rays (ours; None: orthographic at ``scale`` throughout).
     """
 
     right: np.ndarray
     up: np.ndarray
     forward: np.ndarray
     scale: float
+    camera: Camera | None = None
 
     def depth(self, X: np.ndarray) -> np.ndarray:
         """Depth of points along ``forward`` (up to a constant), shape ``(n,)``."""
@@ -69,13 +72,15 @@ class LinearTerm:
         return float(np.sum(self.weight * r * r))
 
 
-def view_frame(camera: Camera, center: np.ndarray) -> ViewFrame:
+def view_frame(camera: Camera, center: np.ndarray, perspective: bool = False) -> ViewFrame:
     """The orthographic approximation of ``camera`` around the world point ``center``.
 
     Args:
         camera: The view the drawing was made in.
         center: A point at the character's depth, shape ``(3,)`` (e.g. the rest joints'
             centroid).
+        perspective: Keep a perspective camera in the frame (``ViewFrame.camera``) for
+            the parts of the solve that read the drawing through its view rays.
 
     Returns:
         The view frame; for a perspective camera the scale is the one at ``center``.
@@ -83,7 +88,8 @@ def view_frame(camera: Camera, center: np.ndarray) -> ViewFrame:
     view = camera.view_matrix
     center = np.asarray(center, dtype=float)
     scale = camera.pixels_per_unit(float(camera.depth(center[None])[0]))
-    return ViewFrame(view[0, :3].copy(), view[1, :3].copy(), camera.forward, scale)
+    return ViewFrame(view[0, :3].copy(), view[1, :3].copy(), camera.forward, scale,
+                     camera if perspective and camera.is_perspective else None)
 
 
 def joint_links(joint_parent: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -109,13 +115,49 @@ def _difference_rows(a: np.ndarray, b: np.ndarray, axis: np.ndarray, n_joints: i
     return rows.reshape(len(a), 3 * n_joints)
 
 
+def ray_rows(camera: Camera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Linear residuals that vanish when each point lies on the view ray of its pixel.
+
+    With ``v = V X + v0`` the view-space point and ``c = P [v, 1]`` its clip coordinates,
+    the point projects onto image coordinate ``n_i`` (normalized, ``2 p_i / size_i - 1``)
+    when ``c_i - n_i c_3 = 0``, which is linear in ``X``. Divided by ``P_ii`` the residual
+    is the point's lateral distance from the ray at its own depth, world units: a pixel
+    off at view depth ``z`` is ``1 / scale(z)`` world units off. For an orthographic
+    camera ``c_3 = 1`` and the residual is ``right . X - p_x / scale`` up to a constant.
+
+    Args:
+        camera: The view.
+        pixels: Drawn points, pixels, shape ``(J, 2)``.
+
+    Returns:
+        ``(A, k)``: the residual of point ``j`` along image axis ``i`` is
+        ``A[j, i] . X_j + k[j, i]``; shapes ``(J, 2, 3)`` and ``(J, 2)``.
+    """
+    P, V = camera.projection_matrix, camera.view_matrix
+    size = np.array([camera.width, camera.height], dtype=float)
+    n = 2.0 * np.asarray(pixels, dtype=float) / size - 1.0  # (J, 2)
+    rows = P[None, :2, :] - n[:, :, None] * P[3][None, None, :]  # (J, 2, 4)
+    rows = rows / np.array([P[0, 0], P[1, 1]])[None, :, None]
+    A = rows[:, :, :3] @ V[:3, :3]
+    k = rows[:, :, :3] @ V[:3, 3] + rows[:, :, 3]
+    return A, k
+
+
 def conformity_term(frame: ViewFrame, joints2d: np.ndarray, a: np.ndarray, b: np.ndarray,
                     lengths: np.ndarray, n_joints: int,
-                    confidence: np.ndarray | None = None) -> LinearTerm:
+                    confidence: np.ndarray | None = None,
+                    camera: Camera | None = None) -> LinearTerm:
     """E_c (Eq. 5): the projected 3D links match the drawn 2D links, slope and length.
 
     ``E_c = sum_ab w_ab || P (X_b - X_a) - (p_b - p_a) / scale ||^2`` with ``P`` the image
     axes and ``w_ab = 1 / l_ab^2``.
+
+    With a perspective ``camera`` (ours) each link's residual is instead the difference of
+    its two joints' distances from their view rays (:func:`ray_rows`):
+    ``(A_b X_b + k_b) - (A_a X_a + k_a)``. At one depth ``z`` this is the orthographic
+    residual at ``scale(z)``; a link reaching towards the camera is measured at its
+    joints' own depths, and the image offset of a link seen off the view's axis as it
+    moves in depth (parallax) is the drawing's, not read as a turn or a length.
 
     Args:
         frame: The view.
@@ -125,14 +167,26 @@ def conformity_term(frame: ViewFrame, joints2d: np.ndarray, a: np.ndarray, b: np
         lengths: Rest 3D length of each link, world units, shape ``(L,)``.
         n_joints: ``J``.
         confidence: Extra factor on each link's weight, shape ``(L,)`` (default 1).
+        camera: The drawing's view, for the perspective residuals (None or orthographic:
+            the orthographic ones at ``frame.scale``).
 
     Returns:
         The term, ``2L`` rows.
     """
-    drawn = (joints2d[b] - joints2d[a]) / frame.scale
-    matrix = np.concatenate([_difference_rows(a, b, frame.right, n_joints),
-                             _difference_rows(a, b, frame.up, n_joints)])
-    target = np.concatenate([drawn[:, 0], drawn[:, 1]])
+    if camera is not None and camera.is_perspective:
+        A, k = ray_rows(camera, joints2d)
+        rows = np.zeros((2, len(a), n_joints, 3))
+        idx = np.arange(len(a))
+        for i in range(2):
+            rows[i, idx, b] += A[b, i]
+            rows[i, idx, a] -= A[a, i]
+        matrix = rows.reshape(2 * len(a), 3 * n_joints)
+        target = np.concatenate([k[a, 0] - k[b, 0], k[a, 1] - k[b, 1]])
+    else:
+        drawn = (joints2d[b] - joints2d[a]) / frame.scale
+        matrix = np.concatenate([_difference_rows(a, b, frame.right, n_joints),
+                                 _difference_rows(a, b, frame.up, n_joints)])
+        target = np.concatenate([drawn[:, 0], drawn[:, 1]])
     w = 1.0 / np.maximum(lengths, 1e-9) ** 2
     if confidence is not None:
         w = w * np.asarray(confidence, dtype=float)

@@ -10,7 +10,10 @@ bind pose (:func:`carried_sides`); the rig's limits and the rest bend of knees a
 decide the bones at those joints (:func:`hinge_signs`); then sides that break
 depth-order constraints are flipped greedily. When the
 drawing shows the character turned around (its left and right hips or shoulders swapped
-in the image, :func:`drawn_facing`), the bind pose's sides and its front are reversed.
+in the image, :func:`drawn_facing`), the bind pose's sides and its front are reversed
+and the bones are aimed from the bind pose turned half round (:func:`turned_bind`).
+Through a perspective camera each tail is put on its pixel's view ray
+(:func:`side_directions`).
 
 Starting lifted matters: from a flat pose the linearized projection cannot shorten a bone
 (the depth direction is a saddle), so the SQP alone would never leave the view plane.
@@ -156,6 +159,46 @@ def _direction(frame: ViewFrame, drawn: np.ndarray, depth: float) -> np.ndarray:
     return drawn[0] * frame.right + drawn[1] * frame.up + depth * frame.forward
 
 
+def side_directions(skeleton: Skeleton, embedding: Embedding2D, frame: ViewFrame, k: int,
+                    bone: int, head: np.ndarray) -> tuple[np.ndarray, float]:
+    """The two 3D vectors solving bone ``k`` may have as drawn: away from and towards the viewer.
+
+    Orthographic (``frame.camera`` None): the drawn vector lifted by
+    ``+-sqrt(l^2 - |drawn|^2)`` along the view. With a perspective camera (ours) the tail
+    is put on its pixel's view ray at the bone's length from the head (a ray-sphere
+    intersection, the farther and the nearer point), the ray shifted by the head's own
+    offset from its pixel's ray (the start's joints are not exactly where they are
+    drawn). A ray that passes farther than the bone's length gives its closest point on
+    both sides.
+
+    Args:
+        skeleton: The full skeleton.
+        embedding: The 2D embedding.
+        frame: The view.
+        k: Solving bone index.
+        bone: Its full-skeleton index.
+        head: The bone's head in the pose being aimed, world units, ``(3,)``.
+
+    Returns:
+        ``(sides, lift)``: the away and towards vectors, ``(2, 3)``, and half their
+        difference along the view (the depth change the drawing leaves), world units.
+    """
+    camera = frame.camera
+    if camera is None:
+        drawn, depth = _drawn_link(skeleton, embedding, frame, k, bone)
+        return np.stack([_direction(frame, drawn, depth), _direction(frame, drawn, -depth)]), depth
+    s = embedding.solving
+    pixels = embedding.joints2d[[s.head_joint[k], s.tail_joint[k]]]
+    head = np.asarray(head, float)
+    shift = head - camera.unproject_at_depth(pixels[:1], camera.depth(head[None]))[0]
+    origins, dirs = camera.rays(pixels[1:])
+    q, u = origins[0] + shift - head, dirs[0]
+    uq = float(u @ q)
+    root = float(np.sqrt(max(uq * uq - q @ q + skeleton.lengths[bone] ** 2, 0.0)))
+    sides = q[None] + np.array([[-uq + root], [-uq - root]]) * u[None]
+    return sides, root * float(u @ frame.forward)
+
+
 def lifted_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                 embedding: Embedding2D, bind: Pose, signs: np.ndarray, fixed: np.ndarray
                 ) -> Pose:
@@ -176,9 +219,10 @@ def lifted_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     return _aim_in_order(skeleton, jmap, frame, embedding, bind, signs, fixed)[0]
 
 
-#: ``decide(k, bone, drawn, depth, state, pose)``: the side of solving bone ``k`` (full
-#: skeleton index ``bone``, drawn as ``drawn`` view units with ``depth`` out of the view
-#: plane) in ``pose`` (its parents aimed, forward ``state``), or None to keep it.
+#: ``decide(k, bone, sides, depth, state, pose)``: the side of solving bone ``k`` (full
+#: skeleton index ``bone``, whose two drawn 3D vectors, away from and towards the viewer,
+#: are ``sides`` with ``depth`` out of the view plane, :func:`side_directions`) in
+#: ``pose`` (its parents aimed, forward ``state``), or None to keep it.
 Decide = Callable[[int, int, np.ndarray, float, PoseState, Pose], "float | None"]
 
 
@@ -209,18 +253,53 @@ def _aim_in_order(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         if fixed[k]:
             continue
         bone = int(bone)
-        drawn, depth = _drawn_link(skeleton, embedding, frame, k, bone)
         state = skeleton.forward(pose)
+        sides, depth = side_directions(skeleton, embedding, frame, k, bone,
+                                       state.heads[bone])
         if decide is not None:
-            side = decide(k, bone, drawn, depth, state, pose)
+            side = decide(k, bone, sides, depth, state, pose)
             if side is not None:
                 signs[k] = side
-        direction = _direction(frame, drawn, signs[k] * depth)
+        direction = sides[0] if signs[k] > 0 else sides[1] if signs[k] < 0 \
+            else sides.mean(axis=0)
         if np.linalg.norm(direction) < 1e-9 * skeleton.lengths[bone]:
             continue
         rot = skeleton.aim_local(bone, direction, state, pose.rotations[bone])
         pose = pose.with_rotations(np.array([bone]), rot[None])
     return pose, signs
+
+
+def turned_bind(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame, bind: Pose,
+                fixed: np.ndarray) -> Pose:
+    """The bind pose turned half round about the view's up axis (ours).
+
+    For a character drawn turned around (:func:`drawn_facing`), each top solving bone (its
+    parent not solving) not ``fixed`` is turned by 180 degrees about the view's up axis
+    through its head before the bones are aimed: aiming keeps a bone's twist
+    (:meth:`Skeleton.aim_local`), so from the unturned bind pose the SQP had to turn the
+    whole body round itself, through the depth of every limb.
+
+    Args:
+        skeleton: The full skeleton.
+        jmap: Joint map of the solving skeleton.
+        frame: The view.
+        bind: The bind pose.
+        fixed: Solving bones left at their bind rotation, ``(m,)`` bool.
+
+    Returns:
+        The turned pose.
+    """
+    solving = set(int(b) for b in jmap.bones)
+    up = np.asarray(frame.up, float)
+    half = 2.0 * np.outer(up, up) / float(up @ up) - np.eye(3)  # rotation by pi about up
+    state = skeleton.forward(bind)
+    pose = bind
+    for k, bone in enumerate(jmap.bones):
+        if fixed[k] or int(skeleton.parents[bone]) in solving:
+            continue
+        rot = skeleton.local_rotation_for_frame(int(bone), half @ state.frames[bone], state)
+        pose = pose.with_rotations(np.array([bone]), rot[None])
+    return pose
 
 
 def _within(rotvec: np.ndarray, limits: np.ndarray, tol: float = 1e-3) -> bool:
@@ -259,14 +338,14 @@ def carried_sides(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     Returns:
         The sides, ``(m,)``.
     """
-    def decide(k: int, bone: int, drawn: np.ndarray, depth: float, state: PoseState,
+    def decide(k: int, bone: int, sides: np.ndarray, depth: float, state: PoseState,
                pose: Pose) -> float | None:
         length = skeleton.lengths[bone]
         if not (open_[k] and depth >= min_lift * length):
             return None
         carried = state.tails[bone] - state.heads[bone]
-        cos = [float(_direction(frame, drawn, sign * depth) @ carried)
-               / max(length * float(np.linalg.norm(carried)), 1e-12) for sign in (1.0, -1.0)]
+        cos = [float(c @ carried) / max(float(np.linalg.norm(c) * np.linalg.norm(carried)),
+                                         1e-12) for c in sides]
         near = [c >= np.cos(max_angle) for c in cos]
         if near[0] == near[1]:
             return None
@@ -328,12 +407,12 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                       and side_of(skeleton.names[b]) is not None
                       for k, b in enumerate(jmap.bones)])
 
-    def decide(k: int, bone: int, drawn: np.ndarray, depth: float, state: PoseState,
+    def decide(k: int, bone: int, sides: np.ndarray, depth: float, state: PoseState,
                pose: Pose) -> float | None:
         parent = int(skeleton.parents[bone])
         if depth < min_lift * skeleton.lengths[bone] or parent not in solving:
             return None
-        cands = [_direction(frame, drawn, sign * depth) for sign in (1.0, -1.0)]
+        cands = list(sides)
         if ik_limits is not None and np.any(np.isfinite(ik_limits[bone])):
             rotvecs = log_map(np.stack([skeleton.aim_local(bone, c, state, pose.rotations[bone])
                                         for c in cands]))
@@ -370,7 +449,7 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                keep: np.ndarray | None = None, ik_limits: np.ndarray | None = None,
                natural_bend: bool = False, limit_axes: np.ndarray | None = None,
                agreement: np.ndarray | None = None, min_agreement: float = 0.1,
-               carried_turn: float = 0.0) -> tuple[Pose, np.ndarray]:
+               carried_turn: float = 0.0, turn: bool = False) -> tuple[Pose, np.ndarray]:
     """The lifted start pose and the depth side of each solving bone.
 
     Args:
@@ -401,6 +480,8 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         carried_turn: Bones drawn within this angle of their bind direction carried by
             their parents keep that side (:func:`carried_sides`), radians; 0 leaves them
             to the default.
+        turn: For a character drawn turned around, aim the bones from the bind pose
+            turned half round (:func:`turned_bind`).
 
     Returns:
         ``(pose, signs)``: the start pose and the sides, ``(m,)``.
@@ -425,6 +506,8 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     if agreement is not None:
         kept &= np.asarray(agreement, float) >= min_agreement
     signs = np.where(kept, facing * np.sign(bind_slope), default)
+    if facing < 0 and turn:
+        bind = turned_bind(skeleton, jm, f, bind, fixed)
     if carried_turn > 0.0:
         signs = carried_sides(skeleton, jm, f, embedding, bind, signs, fixed, ~kept,
                               carried_turn)

@@ -1,0 +1,149 @@
+"""The 3D step through a perspective camera, the turned start and the spine's rule."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gesture_pose.core.camera import Camera
+from gesture_pose.core.gesture.depth import DepthOptions, energies, solve_pose3d, start, twist
+from gesture_pose.core.gesture.depth.evaluation import joints_of
+from gesture_pose.core.gesture.depth.synthetic import project_embedding, solving_skeleton
+from gesture_pose.core.rotations import exp_map
+from gesture_pose.core.skeleton import Pose, Skeleton
+from tests.core.fixtures import chain_skeleton, tree_skeleton
+
+
+def _close_camera() -> Camera:
+    """A wide camera 2.5 m in front of the tree skeleton: strong perspective."""
+    return Camera.look_at([0.0, -2.5, 0.8], [0.0, 0.0, 0.8], width=800, height=800,
+                          fov=np.radians(60.0))
+
+
+def _forearms_at_the_viewer(sk: Skeleton) -> Pose:
+    """Both forearms of the tree skeleton turned 60 / 50 degrees towards the camera (-y)."""
+    rot = np.tile(np.eye(3), (sk.n_bones, 1, 1))
+    for bone, axis, deg in ((3, (0.0, 0.0, -1.0), 60.0), (5, (0.0, 0.0, 1.0), 50.0)):
+        turn = exp_map(np.asarray(axis) * np.radians(deg))
+        rot[bone] = sk.rest_frames[bone].T @ turn @ sk.rest_frames[bone]
+    return Pose(rot, np.zeros((sk.n_bones, 3)))
+
+
+def test_ray_rows_vanish_on_the_view_ray_and_measure_the_distance_from_it():
+    cam = _close_camera()
+    pts = np.array([[0.3, 0.2, 1.1], [-0.5, -0.8, 0.2], [0.0, 1.5, 0.8]])
+    A, k = energies.ray_rows(cam, cam.project(pts))
+    assert np.allclose(np.einsum("jik,jk->ji", A, pts) + k, 0.0, atol=1e-9)
+    # A point moved across the view by 3 cm at its own depth is 3 cm from its ray.
+    right = cam.view_matrix[0, :3]
+    moved = np.einsum("jik,jk->ji", A, pts + 0.03 * right) + k
+    assert np.allclose(moved[:, 0], 0.03, atol=1e-9)
+    assert np.allclose(moved[:, 1], 0.0, atol=1e-9)
+
+
+def test_perspective_conformity_is_met_by_the_drawn_pose():
+    """The exact drawing of forearms reaching towards a close camera: the view rays' E_c is
+    zero at the known pose, the orthographic one at the character's scale is not."""
+    sk = tree_skeleton()
+    s = solving_skeleton(sk)
+    cam = _close_camera()
+    truth = joints_of(s, sk, _forearms_at_the_viewer(sk))
+    emb = project_embedding(sk, s, _forearms_at_the_viewer(sk), cam, 0.05)
+    a, b = energies.joint_links(s.joint_parent)
+    lengths = np.linalg.norm(s.rest_joints[b] - s.rest_joints[a], axis=1)
+    frame = energies.view_frame(cam, s.rest_joints.mean(axis=0), perspective=True)
+    assert frame.camera is cam
+    rays = energies.conformity_term(frame, emb.joints2d, a, b, lengths, s.n_joints,
+                                    camera=cam)
+    ortho = energies.conformity_term(frame, emb.joints2d, a, b, lengths, s.n_joints)
+    assert rays.value(truth) < 1e-12
+    assert ortho.value(truth) > 0.1  # measured 0.28
+
+
+def test_side_directions_put_the_tail_on_its_view_ray_at_the_bone_length():
+    sk = tree_skeleton()
+    s = solving_skeleton(sk)
+    cam = _close_camera()
+    pose = _forearms_at_the_viewer(sk)
+    emb = project_embedding(sk, s, pose, cam, 0.05)
+    truth = joints_of(s, sk, pose)
+    frame = energies.view_frame(cam, s.rest_joints.mean(axis=0), perspective=True)
+    k = int(np.flatnonzero(s.bones == 3)[0])
+    head = truth[s.head_joint[k]]
+    sides, lift = start.side_directions(sk, emb, frame, k, 3, head)
+    assert np.allclose(np.linalg.norm(sides, axis=1), sk.lengths[3])
+    tails = head + sides
+    assert np.allclose(cam.project(tails), emb.joints2d[s.tail_joint[k]], atol=1e-6)
+    # The nearer side is the known pose; the farther one is deeper than the head.
+    assert np.allclose(tails[1], truth[s.tail_joint[k]], atol=1e-6)
+    assert cam.depth(tails[:1])[0] > cam.depth(head[None])[0] > cam.depth(tails[1:])[0]
+    assert lift > 0.2
+    # Orthographic frame: the drawn vector at the character's scale, lifted both ways.
+    flat = energies.view_frame(cam, s.rest_joints.mean(axis=0))
+    ortho, depth = start.side_directions(sk, emb, flat, k, 3, head)
+    assert np.allclose(ortho[0] @ flat.forward, depth)
+    assert np.allclose(ortho[1] @ flat.forward, -depth)
+
+
+def test_a_character_drawn_turned_around_starts_turned():
+    """The start aims bones from the bind pose turned half round: the shoulders come out
+    in the drawing's left/right order (aiming alone keeps the bind twist)."""
+    sk = tree_skeleton()
+    s = solving_skeleton(sk)
+    cam = Camera.look_at([0.0, -6.0, 0.8], [0.0, 0.0, 0.8], width=800, height=600,
+                         ortho_scale=3.0)
+    rot = np.tile(np.eye(3), (6, 1, 1))
+    rot[0] = sk.rest_frames[0].T @ exp_map(np.array([0.0, 0.0, np.pi])) @ sk.rest_frames[0]
+    truth = Pose(rot, np.zeros((6, 3)))
+    emb = project_embedding(sk, s, truth, cam, 0.05)
+    jm = twist.joint_map(sk, s)
+    bind = Pose.identity(sk.n_bones)
+    X_rest, _ = twist.joint_positions(sk, jm, bind)
+    frame = energies.view_frame(cam, X_rest.mean(axis=0))
+    assert start.drawn_facing(s, emb.joints2d, X_rest, frame) == -1.0
+    left, right = (list(s.joint_bones).index(n) for n in ("arm.L head", "arm.R head"))
+    for turn, order in ((True, -1.0), (False, 1.0)):
+        pose, _ = start.start_pose(sk, jm, frame, [], emb, bind, facing=-1.0, turn=turn)
+        X, _ = twist.joint_positions(sk, jm, pose)
+        across = (X[left] - X[right]) @ frame.right
+        assert np.sign(across) == order * np.sign((X_rest[left] - X_rest[right]) @ frame.right)
+    turned, _ = start.start_pose(sk, jm, frame, [], emb, bind, facing=-1.0, turn=True)
+    X, _ = twist.joint_positions(sk, jm, turned)
+    assert np.allclose(X, joints_of(s, sk, truth), atol=1e-6)
+
+
+def test_the_same_direction_rule_skips_the_spine_but_not_the_limbs():
+    """A spine bent in depth (a zig-zag: towards the viewer, then as much away) is drawn
+    straight and equally foreshortened from the front: its links are not given one
+    direction; a straight arm drawn straight still is."""
+    pts = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.3], [0.0, 0.0, 0.6], [0.0, 0.0, 0.9]])
+    sk = chain_skeleton(pts)
+    sk = Skeleton(names=("hips", "spine", "chest"), parents=sk.parents,
+                  rest_heads=sk.rest_heads, rest_tails=sk.rest_tails,
+                  rest_frames=sk.rest_frames, inherit_rotation=sk.inherit_rotation,
+                  connected=sk.connected, deform=sk.deform)
+    s = solving_skeleton(sk)
+    cam = Camera.look_at([0.0, -6.0, 0.45], [0.0, 0.0, 0.45], width=800, height=800,
+                         ortho_scale=2.0)
+    rot = np.tile(np.eye(3), (3, 1, 1))
+    for bone, deg in ((1, 35.0), (2, -70.0)):  # towards the viewer (-y), then away
+        rot[bone] = sk.rest_frames[bone].T @ exp_map(np.array([-1.0, 0.0, 0.0])
+                                                     * np.radians(deg)) @ sk.rest_frames[bone]
+    truth = Pose(rot, np.zeros((3, 3)))
+    emb = project_embedding(sk, s, truth, cam, 0.05)
+    free = solve_pose3d(sk, emb, cam)
+    ruled = solve_pose3d(sk, emb, cam, options=DepthOptions(spine_parallel=True))
+    assert not [e for e in free.equalities if e.startswith("straight")]
+    assert [e for e in ruled.equalities if e.startswith("straight")]
+    names = ("upper_arm.L", "forearm.L")
+    arm_sk = chain_skeleton(pts[:3])
+    arm_sk = Skeleton(names=names, parents=arm_sk.parents, rest_heads=arm_sk.rest_heads,
+                      rest_tails=arm_sk.rest_tails, rest_frames=arm_sk.rest_frames,
+                      inherit_rotation=arm_sk.inherit_rotation, connected=arm_sk.connected,
+                      deform=arm_sk.deform)
+    arm = solving_skeleton(arm_sk)
+    tilt = np.tile(np.eye(3), (2, 1, 1))
+    tilt[0] = arm_sk.rest_frames[0].T @ exp_map(np.array([-1.0, 0.0, 0.0])
+                                                * np.radians(40.0)) @ arm_sk.rest_frames[0]
+    arm_emb = project_embedding(arm_sk, arm, Pose(tilt, np.zeros((2, 3))), cam, 0.05)
+    res = solve_pose3d(arm_sk, arm_emb, cam)
+    assert [e for e in res.equalities if e.startswith("straight")]
