@@ -62,6 +62,9 @@ def _upright(figure: CharacterFigure, skeleton: Skeleton) -> bool:
 GA_SEEDS = 3
 #: Refined individuals whose depth flips are tried.
 FLIPPED_SEEDS = 2
+#: Root gene change (radians and world units) below which a spine-mirrored seed is the
+#: seed itself (its spine within about 3 degrees of the view plane) and is not tried.
+MIRROR_MIN = 0.05
 #: Depth interpretations whose collisions are checked (the most plausible without them).
 SCREENED = 64
 #: Candidates refined beyond the number of suggestions.
@@ -577,8 +580,11 @@ def _solve(inp: StickInput) -> StickResult:
     tops = np.argsort([r.energy for r in first], kind="stable")[:FLIPPED_SEEDS]
     # Each also with its spine's depth mirrored: the search samples spines near the view
     # plane, and a body bent towards the eye or away from it has a twin bent the other way.
+    # A spine in the view plane mirrors onto itself: its flips would repeat the seed's.
     starts = [first[i].x for i in tops]
-    starts += [_spine_flipped(model, x, bounds, cam) for x in starts]
+    mirrored = [_spine_flipped(model, x, bounds, cam) for x in starts]
+    starts += [f for f, x in zip(mirrored, starts, strict=True)
+               if np.linalg.norm(f[:6] - x[:6]) > MIRROR_MIN]
     pool = np.concatenate([[r.x for r in first]] +
                           [depth_flips(model, x, bounds, stick, cam) for x in starts])
     # Collisions (the costly term) only for the most plausible without them.
