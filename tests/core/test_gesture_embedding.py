@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gesture_pose.core.exceptions import InputError
-from gesture_pose.core.gesture.embedding import fit_drawing
+from gesture_pose.core.gesture.embedding import GestureParams, fit_drawing
 from gesture_pose.core.gesture.mrf import interior_joints, make_problem
 from gesture_pose.core.gesture.preprocess import preprocess
 from gesture_pose.core.gesture.radii import discrete_radii, fit_sphere, joint_radii
@@ -18,7 +18,7 @@ from gesture_pose.core.skeleton import Pose
 from gesture_pose.core.stroke import Stroke
 
 from .fixtures import chain_skeleton, front_camera, tree_skeleton
-from .test_gesture_fixtures import bent_arm_outline, capsule_vertices
+from .test_gesture_fixtures import arc, bent_arm_outline, capsule_vertices, segment
 
 R = 0.1125  # limb radius, metres (30 px in the orthographic front camera)
 
@@ -54,6 +54,25 @@ def test_bent_arm_puts_the_elbow_at_the_arc_centre_inside_the_arm():
     assert emb.coverage > 0.85
     assert all(len(segs) > 0 for segs in emb.bone_segments)
     assert set(emb.timings) >= {"preprocess", "candidates", "mrf", "consistency", "refine"}
+
+
+def test_refinement_from_the_pose_is_kept_only_when_it_fits_better():
+    cam, skel, bent, verts, _ = _arm_case()
+    s, w = np.array([-0.8, 0.8]), np.array([0.7, 0.8])
+    straight = np.concatenate([segment(s - [0, R], w - [0, R]), arc(w, R, -90, 90),
+                               segment(w + [0, R], s + [0, R]), arc(s, R, 90, 270)])
+    flat = cam.project(np.stack([straight[:, 0], np.zeros(len(straight)), straight[:, 1]], 1))
+    for pixels in (flat, bent):
+        on = fit_drawing([Stroke(pixels)], skel, Pose.identity(2), verts, cam)
+        off = fit_drawing([Stroke(pixels)], skel, Pose.identity(2), verts, cam,
+                          params=replace(GestureParams(), bind_start=False))
+        # The start from the pose competes on E_match, overlaps and coverage: never worse.
+        assert on.e_match <= off.e_match + 1e-9
+        assert on.coverage >= off.coverage - 1e-9
+    # The arm drawn as it stands: its joints where the pose has them.
+    emb = fit_drawing([Stroke(flat)], skel, Pose.identity(2), verts, cam)
+    truth = cam.project(np.array([[-0.8, 0, 0.8], [0.1, 0, 0.8], [0.7, 0, 0.8]]))
+    assert np.linalg.norm(emb.joints2d - truth, axis=1).max() < emb.epsilon
 
 
 def test_fit_is_deterministic():
