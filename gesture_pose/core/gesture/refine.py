@@ -298,15 +298,69 @@ def _walk_group(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
     moved = np.stack([cos * rel[:, 0] - sin * rel[:, 1], sin * rel[:, 0] + cos * rel[:, 1]],
                      axis=2) + centre + shift[:, None]
     ok = _same_side(problem, pos[grp[0]], moved[:, 0], 2.0 * conf.radii[grp[0]] + eps)
-    best_e = joint_energy(problem, _with(conf, pos), grp)[0] - 1e-6
-    best = pos
-    for k in np.flatnonzero(ok):
-        trial = pos.copy()
-        trial[grp] = moved[k]
-        e = joint_energy(problem, _with(conf, trial), grp)[0]
-        if e < best_e:
-            best_e, best = e, trial
-    return best
+    if not ok.any():
+        return pos
+    trials = np.concatenate([pos[grp][None], moved[ok]])
+    energy = _set_energy(problem, conf, pos, grp, trials)
+    k = int(np.argmin(energy[1:]))
+    if energy[1 + k] >= energy[0] - 1e-6:
+        return pos
+    out = pos.copy()
+    out[grp] = trials[1 + k]
+    return out
+
+
+def _set_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
+                idx: np.ndarray, moved: np.ndarray) -> np.ndarray:
+    """``E_match`` of the factors touching joints ``idx`` for each placement of them, ``(T,)``.
+
+    The factors of :func:`~.mrf.joint_energy` with ``joints=idx`` (the unaries of
+    ``idx``, every link and triplet with a joint in ``idx``), evaluated for all trials at
+    once; the other joints stay at ``pos``.
+
+    Args:
+        problem: The matching problem.
+        conf: The configuration's labels (radii, groups, sides).
+        pos: Current joint positions, pixels, ``(J, 2)``.
+        idx: The moved joints, ``(k,)``.
+        moved: Their positions in each trial, pixels, ``(T, k, 2)``.
+    """
+    s, d, prm = problem.solving, problem.drawing, problem.params
+    par = s.joint_parent
+    t = len(moved)
+    slot = {int(k): i for i, k in enumerate(idx)}
+
+    def at(k: int) -> np.ndarray:
+        return moved[:, slot[k]] if k in slot else pos[k][None]
+
+    total = np.zeros(t)
+    for k in slot:
+        aligned = unary_cost(d, at(k), np.full(t, conf.radii[k]), bool(problem.terminal[k]),
+                             prm)[1]
+        total += unary_from_aligned(aligned, bool(problem.terminal[k]), prm,
+                                    problem.bone_blocked(k))
+    for j in np.flatnonzero(par >= 0):
+        p = int(par[j])
+        g = int(par[p])
+        if j in slot or p in slot:
+            pa, pb = at(p), at(int(j))
+            if s.joint_link_bone[j] < 0:
+                table = rigid_cost(d, pa, pb, problem.link_offset[j], prm,
+                                   problem.link_length[j])
+            else:
+                table = direction_cost(pa, pb, problem.link_offset[j], prm) + pair_cost(
+                    d, pa, conf.radii[[p]], conf.group[[p]], conf.side[[p]], pb,
+                    conf.radii[[j]], conf.group[[j]], conf.side[[j]], problem.link_length[j],
+                    prm, blocked=problem.bone_blocked(j), free=problem.free_lengths(j),
+                    nearest=problem.nearest_length(j))
+            total += _per_trial(table, t)
+        if problem.has_triplet(j) and (j in slot or p in slot or g in slot):
+            ga, gb, gc = conf.group[g], conf.group[p], conf.group[j]
+            shared = bool(ga == gb == gc and gc >= 0)
+            table = triplet_cost(at(g), at(p), at(int(j)), np.array(shared),
+                                 float(problem.rest_angle[j]), prm)
+            total += _per_trial(table, t)
+    return total
 
 
 def refine(problem: MatchProblem, conf: JointCandidates, template: np.ndarray,
@@ -373,11 +427,12 @@ def refine(problem: MatchProblem, conf: JointCandidates, template: np.ndarray,
             trial_pos[grp] = kabsch_2d(template[grp], pos[grp])
             if np.allclose(trial_pos, pos, atol=1e-3):
                 continue
-            old = _with(conf, pos)
-            new = _with(conf, trial_pos)
-            if (joint_energy(problem, new, grp)[0] <= joint_energy(problem, old, grp)[0]
-                    + params.snap_slack):
-                pos = trial_pos
+            if np.isfinite(params.snap_slack):
+                old, new = _set_energy(problem, conf, pos, grp,
+                                       np.stack([pos[grp], trial_pos[grp]]))
+                if new > old + params.snap_slack:
+                    continue
+            pos = trial_pos
         moves += moved
         if moved == 0 or gain < params.converged:
             if step <= params.min_step:
