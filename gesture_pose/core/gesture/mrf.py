@@ -351,13 +351,37 @@ def root_reach(solving: SolvingSkeleton) -> np.ndarray:
 def link_table(problem: MatchProblem, j: int, a: JointCandidates,
                b: JointCandidates, stations: int = 8) -> np.ndarray:
     """Pairwise table between parent candidates ``a`` and joint ``j``'s candidates ``b``."""
+    return link_cost(problem, j, a.positions, a.radii, a.group, a.side, b.positions, b.radii,
+                     b.group, b.side, stations)
+
+
+def link_cost(problem: MatchProblem, j: int, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
+              sa: np.ndarray, pb: np.ndarray, rb: np.ndarray, gb: np.ndarray, sb: np.ndarray,
+              stations: int = 8) -> np.ndarray:
+    """Cost of joint ``j``'s link for parent placements ``a`` and placements ``b``, ``(Ka, Kb)``.
+
+    A rigid offset (an unconnected head) pays :func:`~.costs.rigid_cost`; a bone pays the
+    direction prior and ``E(i, j)`` (:func:`~.costs.pair_cost`).
+
+    Args:
+        problem: The matching problem.
+        j: The joint whose link to its parent is costed.
+        pa: Parent positions, pixels, ``(Ka, 2)``.
+        ra: Their radii, pixels, ``(Ka,)`` or ``(1,)``.
+        ga: Their contour groups (-1 for grid), ``(Ka,)`` or ``(1,)``.
+        sa: Their contour sides, ``(Ka,)`` or ``(1,)``.
+        pb: The joint's positions, pixels, ``(Kb, 2)``.
+        rb: Their radii, pixels, ``(Kb,)`` or ``(1,)``.
+        gb: Their contour groups, ``(Kb,)`` or ``(1,)``.
+        sb: Their contour sides, ``(Kb,)`` or ``(1,)``.
+        stations: Outline samples per bone.
+    """
     if problem.solving.joint_link_bone[j] < 0:
-        return rigid_cost(problem.drawing, a.positions, b.positions, problem.link_offset[j],
-                          problem.params, problem.link_length[j])
-    prior = direction_cost(a.positions, b.positions, problem.link_offset[j], problem.params)
-    return prior + pair_cost(problem.drawing, a.positions, a.radii, a.group, a.side,
-                             b.positions, b.radii, b.group, b.side, problem.link_length[j],
-                             problem.params, stations=stations,
+        return rigid_cost(problem.drawing, pa, pb, problem.link_offset[j], problem.params,
+                          problem.link_length[j])
+    prior = direction_cost(pa, pb, problem.link_offset[j], problem.params)
+    return prior + pair_cost(problem.drawing, pa, ra, ga, sa, pb, rb, gb, sb,
+                             problem.link_length[j], problem.params, stations=stations,
                              blocked=problem.bone_blocked(j), free=problem.free_lengths(j),
                              nearest=problem.nearest_length(j))
 

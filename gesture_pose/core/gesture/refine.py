@@ -24,14 +24,11 @@ import numpy as np
 
 from .candidates import JointCandidates
 from .costs import (
-    direction_cost,
-    pair_cost,
-    rigid_cost,
     triplet_cost,
     unary_cost,
     unary_from_aligned,
 )
-from .mrf import MatchProblem, joint_energy
+from .mrf import MatchProblem, joint_energy, link_cost
 
 
 @dataclass(frozen=True)
@@ -85,16 +82,6 @@ def _factor_energy(problem: MatchProblem, conf: JointCandidates, j: int,
     total = unary_from_aligned(unary_cost(d, trial, r, bool(problem.terminal[j]), prm)[1],
                                bool(problem.terminal[j]), prm, problem.bone_blocked(j))
 
-    def link(child: int, pa, ra, ga, sa, pb, rb, gb, sb) -> np.ndarray:
-        if s.joint_link_bone[child] < 0:
-            return rigid_cost(d, pa, pb, problem.link_offset[child], prm,
-                              problem.link_length[child])
-        prior = direction_cost(pa, pb, problem.link_offset[child], prm)
-        return prior + pair_cost(d, pa, ra, ga, sa, pb, rb, gb, sb, problem.link_length[child],
-                                 prm, blocked=problem.bone_blocked(child),
-                                 free=problem.free_lengths(child),
-                                 nearest=problem.nearest_length(child))
-
     c1 = conf.take(np.arange(len(conf)))
     P, R, G, S = c1.positions, c1.radii, c1.group, c1.side
 
@@ -103,9 +90,9 @@ def _factor_energy(problem: MatchProblem, conf: JointCandidates, j: int,
 
     p = par[j]
     if p >= 0:
-        total = total + link(j, *one(p), trial, r, g, sd)[0]
+        total = total + link_cost(problem, j, *one(p), trial, r, g, sd)[0]
     for c in np.flatnonzero(par == j):
-        total = total + link(c, trial, r, g, sd, *one(c))[:, 0]
+        total = total + link_cost(problem, c, trial, r, g, sd, *one(c))[:, 0]
 
     def trip(k: int, pa, pb, pc, ga, gb, gc) -> np.ndarray:
         shared = (ga[:, None, None] == gb[None, :, None]) & (gb[None, :, None] ==
@@ -179,17 +166,7 @@ def _chain_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
         aligned = unary_cost(d, moved[int(k)], r, bool(problem.terminal[k]), prm)[1]
         total += unary_from_aligned(aligned, bool(problem.terminal[k]), prm,
                                     problem.bone_blocked(k))
-        p = par[k]
-        pa, pb = at(p), moved[int(k)]
-        if s.joint_link_bone[k] < 0:
-            table = rigid_cost(d, pa, pb, problem.link_offset[k], prm, problem.link_length[k])
-        else:
-            table = direction_cost(pa, pb, problem.link_offset[k], prm) + pair_cost(
-                d, pa, conf.radii[[p]], conf.group[[p]], conf.side[[p]], pb,
-                conf.radii[[k]], conf.group[[k]], conf.side[[k]], problem.link_length[k], prm,
-                blocked=problem.bone_blocked(k), free=problem.free_lengths(k),
-                nearest=problem.nearest_length(k))
-        total += _per_trial(table, t)
+        total += _per_trial(_conf_link(problem, conf, int(k), at(par[k]), moved[int(k)]), t)
     top = int(chain[0])
     for k in [top, *np.flatnonzero(par == top)]:
         if not problem.has_triplet(k):
@@ -201,6 +178,14 @@ def _chain_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
                              float(problem.rest_angle[k]), prm)
         total += _per_trial(table, t)
     return total
+
+
+def _conf_link(problem: MatchProblem, conf: JointCandidates, j: int, pa: np.ndarray,
+               pb: np.ndarray) -> np.ndarray:
+    """Joint ``j``'s link cost with the configuration's labels, positions moved, ``(Ka, Kb)``."""
+    p = problem.solving.joint_parent[j]
+    return link_cost(problem, j, pa, conf.radii[[p]], conf.group[[p]], conf.side[[p]], pb,
+                     conf.radii[[j]], conf.group[[j]], conf.side[[j]])
 
 
 def _per_trial(table: np.ndarray, t: int) -> np.ndarray:
@@ -343,17 +328,7 @@ def _set_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
         p = int(par[j])
         g = int(par[p])
         if j in slot or p in slot:
-            pa, pb = at(p), at(int(j))
-            if s.joint_link_bone[j] < 0:
-                table = rigid_cost(d, pa, pb, problem.link_offset[j], prm,
-                                   problem.link_length[j])
-            else:
-                table = direction_cost(pa, pb, problem.link_offset[j], prm) + pair_cost(
-                    d, pa, conf.radii[[p]], conf.group[[p]], conf.side[[p]], pb,
-                    conf.radii[[j]], conf.group[[j]], conf.side[[j]], problem.link_length[j],
-                    prm, blocked=problem.bone_blocked(j), free=problem.free_lengths(j),
-                    nearest=problem.nearest_length(j))
-            total += _per_trial(table, t)
+            total += _per_trial(_conf_link(problem, conf, int(j), at(p), at(int(j))), t)
         if problem.has_triplet(j) and (j in slot or p in slot or g in slot):
             ga, gb, gc = conf.group[g], conf.group[p], conf.group[j]
             shared = bool(ga == gb == gc and gc >= 0)
