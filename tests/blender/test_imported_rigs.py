@@ -325,7 +325,10 @@ def test_pose_keeps_ik_limits_about_the_real_bones_axes(registered, monkeypatch)
         return log_map(read_armature(token, joints=False).pose.rotations[i][None])[0]
 
     pose_drawing.pose_from_drawing(token, sketch, camera, insert_keys=False, show_fit=False)
-    assert np.abs(real_rotvec()).max() > 0.3
+    # The free solve turns the forearm well beyond the limit of 0.1 set below: measured
+    # 0.27 rad with the 3D step's view rays (0.37 before; the pose's mean joint error
+    # 0.56 -> 0.24 % of the height); the known pose twists it by 25 degrees (0.44 rad).
+    assert np.abs(real_rotvec()).max() > 0.25
     builders.reset_pose(token)
     pb = token.pose.bones["forearm.L"]
     for ax in "xyz":
