@@ -362,6 +362,7 @@ def pictures(out_dir: Path, pose_name: str = "demo") -> list[Path]:
     from gesture_pose.blender.write_pose import apply_pose
     from gesture_pose.core.gesture.depth import solve_pose3d
     from gesture_pose.core.gesture.depth.synthetic import project_embedding
+    from gesture_pose.core.gesture.embedding import posed_joints
     from gesture_pose.core.gesture.solving import solving_skeleton
     from gesture_pose.core.gesture.trace import trace_contours
     from sample_scenes import builders
@@ -412,7 +413,13 @@ def pictures(out_dir: Path, pose_name: str = "demo") -> list[Path]:
              out_dir / f"gesture3d_depth{suffix}.png"]
     _save_row([before, after], paths[0])
     _save_row([truth_side, lifted_side, whole_side], paths[1])
-    print(f"whole Pose {rep.seconds:.1f} s, coverage {rep.embedding.coverage:.2f}")
+    whole = posed_joints(solving, bind.skeleton, rep.result.pose)
+    errors = [metrics(solving, bind.skeleton, truth.pose, joints, cam)[0]
+              for joints in (whole, res.joints3d,
+                             posed_joints(solving, bind.skeleton, bind.pose))]
+    print(f"whole Pose {rep.seconds:.1f} s, coverage {rep.embedding.coverage:.2f}; 3D error "
+          "(% of the height): whole Pose {:.2f}, exact embedding {:.2f}, bind pose "
+          "{:.2f}".format(*errors))
     return paths
 
 
