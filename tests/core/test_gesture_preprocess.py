@@ -67,6 +67,23 @@ def test_distance_field_measures_distance_to_ink():
     assert abs(d.points[owner[0], 0] - 100.0) <= d.epsilon
 
 
+def test_distance_field_is_infinite_outside_and_agrees_with_the_kd_tree():
+    d = preprocess([_line([0, 0], [200, 0]), _line([0, 60], [150, 120])])
+    rng = np.random.default_rng(0)
+    pts = rng.uniform([-150, -150], [350, 270], (500, 2))
+    dist, owner = d.lookup(pts)
+    x_dist, x_owner = d.lookup_xy(pts[:, 0], pts[:, 1])
+    np.testing.assert_array_equal(dist, x_dist)
+    np.testing.assert_array_equal(owner, x_owner)
+    inside = np.isfinite(dist)
+    assert 0 < inside.sum() < len(pts)  # some probes fall outside the field
+    far = np.array([[1e6, 0.0], [0.0, -1e6], [-1e6, 1e6]])
+    assert np.all(np.isinf(d.lookup(far)[0]))
+    # Inside, within a cell of the distance to the nearest sample's polyline.
+    nearest = d.tree.query(pts[inside])[0]
+    assert np.all(dist[inside] <= nearest + d.field_cell)
+
+
 def test_empty_drawing_is_an_input_error():
     with pytest.raises(InputError, match="no strokes"):
         preprocess([])

@@ -7,7 +7,13 @@ import numpy as np
 from gesture_pose.core.gesture.candidates import JointCandidates
 from gesture_pose.core.gesture.mrf import joint_energy, make_problem
 from gesture_pose.core.gesture.preprocess import preprocess
-from gesture_pose.core.gesture.refine import RefineParams, _chain_energy, limb_ends, refine
+from gesture_pose.core.gesture.refine import (
+    RefineParams,
+    _chain_energy,
+    _set_energy,
+    limb_ends,
+    refine,
+)
 from gesture_pose.core.gesture.solving import solving_skeleton
 from gesture_pose.core.stroke import Stroke
 
@@ -59,6 +65,25 @@ def test_chain_energy_is_the_change_of_the_whole_energy():
         whole.append(joint_energy(problem, moved)[0])
     np.testing.assert_allclose(chained - chained[0], np.array(whole) - whole[0], atol=1e-9)
     assert np.ptp(chained) > 0.1  # the shifts do change the energy
+
+
+def test_set_energy_sums_the_factors_touching_the_moved_joints():
+    """All trials at once equal joint_energy of each moved configuration on those joints."""
+    problem, conf = _arm()
+    rng = np.random.default_rng(3)
+    for idx in (np.array([1]), np.array([0, 1]), np.array([1, 2]), np.array([0, 1, 2])):
+        trials = conf.positions[idx][None] + rng.normal(0.0, 8.0, (5, len(idx), 2))
+        trials[0] = conf.positions[idx]
+        got = _set_energy(problem, conf, conf.positions, idx, trials)
+        want = []
+        for t in trials:
+            pos = conf.positions.copy()
+            pos[idx] = t
+            moved = JointCandidates(pos, conf.radii, conf.side, conf.origin, conf.group,
+                                    conf.unary, conf.aligned)
+            want.append(joint_energy(problem, moved, idx)[0])
+        np.testing.assert_allclose(got, want, atol=1e-9)
+        assert np.ptp(got) > 0.05  # the trials do change the energy
 
 
 def test_refinement_of_a_displaced_limb_end_regains_the_energy():
