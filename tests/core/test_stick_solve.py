@@ -22,8 +22,14 @@ from gesture_pose.core.stick.genetic import (
 from gesture_pose.core.stick.graph import StickFigure
 from gesture_pose.core.stick.kinematics import PoseModel
 from gesture_pose.core.stick.normalize import normalize_figure
+from gesture_pose.core.stick.objective import EnvPin
 from gesture_pose.core.stick.pins import EnvPinSpec, pin_offsets
-from gesture_pose.core.stick.solve import StickInput, _spine_flipped, solve_stick
+from gesture_pose.core.stick.solve import (
+    StickInput,
+    _pinned_root_depth,
+    _spine_flipped,
+    solve_stick,
+)
 from tests.core.test_stick_figure import humanoid_skeleton
 from tests.core.test_stick_objective import chair_env
 
@@ -135,6 +141,36 @@ def test_reconstructs_a_standing_pose_with_feet_pinned():
     assert [s.score for s in res.suggestions] == sorted(s.score for s in res.suggestions)
     again = solve_stick(inp)
     assert np.array_equal(again.suggestions[0].genes, res.suggestions[0].genes)
+
+
+def test_pinned_root_starts_above_the_standing_contacts():
+    # A camera looking down (from 1.4 m at a point 0.8 m high) at a standing figure: its
+    # pelvis is nearer the eye than its pinned ankles.
+    sk, fig, cam, stick, pins, truth = _stand_problem()
+    up = np.array([0.0, 0.0, 1.0])
+    env = tuple(EnvPin(fig.joint(p.joint), p.point, p.normal) for p in pins)
+    pelvis = fig.joint("pelvis")
+    z = _pinned_root_depth(cam, stick.points[pelvis], env, pelvis, up)
+    mean_depth = float(np.mean(cam.depth(np.array([p.target for p in env]))))
+    true_depth = float(cam.depth(truth[pelvis][None])[0])
+    assert z < mean_depth - 0.05
+    assert abs(z - true_depth) < 0.5 * abs(mean_depth - true_depth)
+    # The point on the pelvis' eye ray at that depth is straight above the contacts'
+    # centroid (horizontally): the support of the balance term.
+    root = cam.unproject_at_depth(stick.points[pelvis][None], z)[0]
+    centre = np.mean([p.target for p in env], axis=0)
+    off = root - centre
+    ray = cam.rays(stick.points[pelvis][None])[1][0]
+    flat = ray - up * (ray @ up)
+    assert abs((off - up * (off @ up)) @ flat) < 1e-9
+    # Lying (the pelvis pinned too) keeps the pins' mean depth; so does a contact that
+    # does not face up (a hand on a wall).
+    lying = env + (EnvPin(pelvis, truth[pelvis] - [0, 0, 0.1], up),)
+    assert _pinned_root_depth(cam, stick.points[pelvis], lying, pelvis, up) == (
+        pytest.approx(float(np.mean(cam.depth(np.array([p.target for p in lying]))))))
+    wall = (EnvPin(fig.joint("wrist.R"), truth[fig.joint("wrist.R")], np.array([1.0, 0, 0])),)
+    assert _pinned_root_depth(cam, stick.points[pelvis], wall, pelvis, up) == (
+        pytest.approx(float(cam.depth(wall[0].target[None])[0])))
 
 
 def test_spine_flip_mirrors_the_body_bend_along_the_eye_ray():
