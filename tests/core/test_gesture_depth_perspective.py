@@ -147,3 +147,67 @@ def test_the_same_direction_rule_skips_the_spine_but_not_the_limbs():
     arm_emb = project_embedding(arm_sk, arm, Pose(tilt, np.zeros((2, 3))), cam, 0.05)
     res = solve_pose3d(arm_sk, arm_emb, cam)
     assert [e for e in res.equalities if e.startswith("straight")]
+
+
+def _two_legs() -> Skeleton:
+    """A vertical trunk of four bones with two legs hanging from hips 0.1 m either side,
+    knees bent 6 degrees at rest (forward, -y, as knees), feet forward."""
+    from tests.core.fixtures import frame_along
+
+    heads, tails, parents, connected = [], [], [], []
+    for i in range(4):
+        heads.append([0.0, 0.0, 3.0 - 0.5 * i])
+        tails.append([0.0, 0.0, 2.5 - 0.5 * i])
+        parents.append(i - 1)
+        connected.append(i > 0)
+    for x in (0.1, -0.1):
+        base = len(heads)
+        pts = [[x, 0.0, 1.0], [x, -0.05, 0.5], [x, 0.0, 0.0], [x, -0.15, 0.0]]
+        for j in range(3):
+            heads.append(pts[j])
+            tails.append(pts[j + 1])
+            parents.append(3 if j == 0 else base + j - 1)
+            connected.append(j > 0)
+    heads, tails = np.array(heads), np.array(tails)
+    frames = np.stack([frame_along(t - h) for h, t in zip(heads, tails, strict=True)])
+    n = len(heads)
+    return Skeleton(names=("b0", "b1", "b2", "b3", "thigh.L", "shin.L", "foot.L", "thigh.R",
+                           "shin.R", "foot.R"),
+                    parents=np.array(parents), rest_heads=heads, rest_tails=tails,
+                    rest_frames=frames, inherit_rotation=np.ones(n, bool),
+                    connected=np.array(connected), deform=np.ones(n, bool))
+
+
+def test_a_knee_the_hinge_tests_leave_open_takes_the_more_bent_side():
+    """A thigh raised at the viewer seen obliquely, its knee bent 120 degrees: both depth
+    sides of the shin bend the knee the natural way. With the hinge-plane test off, the
+    leg hanging from the hips (the left/right pair nearest the root) takes the more bent
+    side, the knee's; a leg without a partner is left undecided (the default side), as
+    test_a_shin_below_a_thigh_at_the_viewer_bends_in_the_knees_plane asserts."""
+    from gesture_pose.core.gesture.embedding import posed_joints
+
+    sk = _two_legs()
+    s = solving_skeleton(sk)
+    cam = Camera.look_at([3.0, -6.0, 0.8], [0.0, 0.0, 0.8], width=800, height=600,
+                         ortho_scale=3.0)
+    pose = Pose.identity(sk.n_bones)
+    for bone, angle in ((4, -75.0), (5, 120.0)):
+        state = sk.forward(pose)
+        world = exp_map(np.array([np.radians(angle), 0.0, 0.0]))
+        frame = state.frames[bone]
+        pose = pose.with_rotations(np.array([bone]),
+                                   (frame.T @ world @ frame @ pose.rotations[bone])[None])
+    emb = project_embedding(sk, s, pose, cam)
+    tj = posed_joints(s, sk, pose)
+    k = int(np.flatnonzero(s.bones == 5)[0])
+    truth = float(np.sign(cam.depth(tj[[s.tail_joint[k]]])[0]
+                          - cam.depth(tj[[s.head_joint[k]]])[0]))
+    jmap = twist.joint_map(sk, s)
+    frame = energies.view_frame(cam, s.rest_joints.mean(axis=0))
+    bind = Pose.identity(sk.n_bones)
+    signs = np.full(jmap.n_bones, -truth)
+    signs[int(np.flatnonzero(s.bones == 4)[0])] = -1.0  # the thigh towards the viewer
+    fixed = np.zeros(jmap.n_bones, bool)
+    fixed[:4] = True
+    got = start.hinge_signs(sk, jmap, frame, emb, bind, signs, fixed, min_off=np.inf)
+    assert got[k] == truth
