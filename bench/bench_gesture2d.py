@@ -52,6 +52,14 @@ def errors(solving, fitted: np.ndarray, truth: np.ndarray) -> list[float]:
     every symmetric joint pair exchanged: an outline drawing does not tell a character
     seen from the front from one seen from the back, which the fit resolves as facing
     the viewer (Section 5.4's front-facing choice).
+
+    Args:
+        solving: The solving skeleton.
+        fitted: Fitted joints, pixels, ``(J, 2)``.
+        truth: True joints in the view, pixels, ``(J, 2)``.
+
+    Returns:
+        ``[mean, 90th percentile, either-facing mean]``, % of the truth's height.
     """
     from gesture_pose.core.gesture.solving import symmetric_joint_pairs
 
@@ -158,8 +166,10 @@ def adventurer_rows(quick: bool) -> list[list]:
         bpy.context.view_layer.update()
         data = read_armature(arm)
         md = read_skinned_meshes(arm, data.skeleton)
-        if scene.camera is not None:
+        if scene.camera is not None:  # the previous pose's camera, with its data
+            old = scene.camera.data
             bpy.data.objects.remove(scene.camera)
+            bpy.data.cameras.remove(old)
         cam = builders.add_camera(md.deformed_vertices, direction=(0.0, 1.0, 0.0),
                                   resolution=(800, 800), margin=1.4)
         camera = camera_from_object(cam, scene)

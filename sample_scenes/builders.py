@@ -529,6 +529,9 @@ def add_camera(target: bpy.types.Object | Sequence[float] | np.ndarray,
         centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
     else:
         pts = np.atleast_2d(np.asarray(target, dtype=float))
+        if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
+            raise ValueError(f"add_camera frames a point (3,) or points (n, 3), got an array "
+                             f"of shape {np.shape(target)}")
         centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
     back = np.asarray(direction, dtype=float)
     back /= np.linalg.norm(back)

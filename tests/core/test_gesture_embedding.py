@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from gesture_pose.core.exceptions import InputError
+from gesture_pose.core.gesture import embedding
+from gesture_pose.core.gesture.candidates import JointCandidates
 from gesture_pose.core.gesture.embedding import GestureParams, fit_drawing
 from gesture_pose.core.gesture.mrf import interior_joints, make_problem
 from gesture_pose.core.gesture.preprocess import preprocess
@@ -18,7 +21,7 @@ from gesture_pose.core.skeleton import Pose
 from gesture_pose.core.stroke import Stroke
 
 from .fixtures import chain_skeleton, front_camera, tree_skeleton
-from .test_gesture_fixtures import arc, bent_arm_outline, capsule_vertices, segment
+from .test_gesture_fixtures import bent_arm_outline, capsule_vertices
 
 R = 0.1125  # limb radius, metres (30 px in the orthographic front camera)
 
@@ -56,23 +59,44 @@ def test_bent_arm_puts_the_elbow_at_the_arc_centre_inside_the_arm():
     assert set(emb.timings) >= {"preprocess", "candidates", "mrf", "consistency", "refine"}
 
 
-def test_refinement_from_the_pose_is_kept_only_when_it_fits_better():
-    cam, skel, bent, verts, _ = _arm_case()
-    s, w = np.array([-0.8, 0.8]), np.array([0.7, 0.8])
-    straight = np.concatenate([segment(s - [0, R], w - [0, R]), arc(w, R, -90, 90),
-                               segment(w + [0, R], s + [0, R]), arc(s, R, 90, 270)])
-    flat = cam.project(np.stack([straight[:, 0], np.zeros(len(straight)), straight[:, 1]], 1))
-    for pixels in (flat, bent):
-        on = fit_drawing([Stroke(pixels)], skel, Pose.identity(2), verts, cam)
-        off = fit_drawing([Stroke(pixels)], skel, Pose.identity(2), verts, cam,
-                          params=replace(GestureParams(), bind_start=False))
-        # The start from the pose competes on E_match, overlaps and coverage: never worse.
-        assert on.e_match <= off.e_match + 1e-9
-        assert on.coverage >= off.coverage - 1e-9
-    # The arm drawn as it stands: its joints where the pose has them.
-    emb = fit_drawing([Stroke(flat)], skel, Pose.identity(2), verts, cam)
-    truth = cam.project(np.array([[-0.8, 0, 0.8], [0.1, 0, 0.8], [0.7, 0, 0.8]]))
-    assert np.linalg.norm(emb.joints2d - truth, axis=1).max() < emb.epsilon
+def test_refinement_from_the_pose_is_kept_only_when_it_fits_better(monkeypatch):
+    """_refine_both keeps the walk from the pose only with a lower energy, no more
+    overlapping parts and no less coverage (refine and the contour assignment faked)."""
+    n = 3
+    reference = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]])
+    conf = JointCandidates(reference + 5.0, np.full(n, 4.0), np.zeros(n, int),
+                           -np.ones(n, int), -np.ones(n, int), np.zeros(n),
+                           -np.ones((n, 48), int))
+    calls = []
+
+    def run(case):
+        # case: (energy, overlaps, coverage) of the discrete walk and of the pose's walk
+        def fake_refine(problem, start, ref, params):
+            from_pose = bool(np.array_equal(start.positions, ref))
+            calls.append(from_pose)
+            return start, {"energy_after": case[from_pose][0]}
+
+        def fake_assign(problem, placed):
+            got = case[bool(np.array_equal(placed.positions, reference))]
+            return SimpleNamespace(overlaps=[(0, 1)] * got[1], coverage=got[2])
+
+        monkeypatch.setattr(embedding, "refine", fake_refine)
+        monkeypatch.setattr(embedding, "assign_contours", fake_assign)
+        out, info = embedding._refine_both(None, conf, reference, GestureParams())
+        from_pose = bool(np.array_equal(out.positions, reference))
+        assert info["pose_start"] == int(from_pose)
+        return from_pose
+
+    discrete = (5.0, 1, 0.80)
+    assert run((discrete, (4.0, 1, 0.80)))          # lower energy, as good otherwise
+    assert run((discrete, (4.0, 0, 0.90)))          # better on every count
+    assert not run((discrete, (5.0, 1, 0.80)))      # no lower energy
+    assert not run((discrete, (4.0, 1, 0.79)))      # less coverage (a limb left behind)
+    assert not run((discrete, (4.0, 2, 0.95)))      # more overlapping parts
+    calls.clear()
+    out, info = embedding._refine_both(None, conf, reference,
+                                       replace(GestureParams(), bind_start=False))
+    assert calls == [False] and info["pose_start"] == 0
 
 
 def test_fit_is_deterministic():

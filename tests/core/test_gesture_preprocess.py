@@ -72,16 +72,21 @@ def test_distance_field_is_infinite_outside_and_agrees_with_the_kd_tree():
     rng = np.random.default_rng(0)
     pts = rng.uniform([-150, -150], [350, 270], (500, 2))
     dist, owner = d.lookup(pts)
-    x_dist, x_owner = d.lookup_xy(pts[:, 0], pts[:, 1])
-    np.testing.assert_array_equal(dist, x_dist)
-    np.testing.assert_array_equal(owner, x_owner)
-    inside = np.isfinite(dist)
+    # The field read directly, cell by cell (rounding to the nearest cell centre).
+    g = np.floor((pts - d.field_origin) / d.field_cell + 0.5).astype(int)
+    h, w = d.field_dist.shape
+    inside = (g[:, 0] >= 0) & (g[:, 0] < w) & (g[:, 1] >= 0) & (g[:, 1] < h)
     assert 0 < inside.sum() < len(pts)  # some probes fall outside the field
-    far = np.array([[1e6, 0.0], [0.0, -1e6], [-1e6, 1e6]])
-    assert np.all(np.isinf(d.lookup(far)[0]))
-    # Inside, within a cell of the distance to the nearest sample's polyline.
+    np.testing.assert_array_equal(dist[inside], d.field_dist[g[inside, 1], g[inside, 0]])
+    np.testing.assert_array_equal(owner[inside], d.field_owner[g[inside, 1], g[inside, 0]])
+    assert np.all(np.isinf(dist[~inside]))
+    x_dist, _ = d.lookup_xy(pts[:, 0], pts[:, 1])
+    np.testing.assert_array_equal(x_dist, dist)
+    # Inside: the distance to the ink (the samples' polylines, up to a cell), which is at
+    # most the distance to the nearest sample and at least that less half a step.
     nearest = d.tree.query(pts[inside])[0]
     assert np.all(dist[inside] <= nearest + d.field_cell)
+    assert np.all(dist[inside] >= nearest - 0.5 * d.epsilon - d.field_cell)
 
 
 def test_empty_drawing_is_an_input_error():

@@ -29,6 +29,7 @@ from .consistency import (
 )
 from .costs import CostParams, unary_cost
 from .mrf import (
+    MatchProblem,
     build_energy,
     configuration,
     interior_joints,
@@ -40,7 +41,7 @@ from .mrf import (
 )
 from .preprocess import PreprocessParams, preprocess
 from .radii import discrete_radii, joint_radii
-from .refine import RefineParams, refine
+from .refine import RefineParams, refine, with_positions
 from .solving import solving_skeleton
 from .types import Embedding2D, SolvingSkeleton
 
@@ -544,12 +545,14 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
 
     t0 = time.perf_counter()
     conf, refine_info = _refine_both(problem, conf, reference, params)
+    if refine_info["pose_start"]:
+        mask = 0  # the pose's start carries no permutation of the limbs
     timings["refine"] = time.perf_counter() - t0
     refine_info["terminal_trials"] = trials
     return _result(problem, conf, refine_info, timings, warnings, rounds, mask)
 
 
-def _refine_both(problem, conf: JointCandidates, reference: np.ndarray,
+def _refine_both(problem: MatchProblem, conf: JointCandidates, reference: np.ndarray,
                  params: GestureParams) -> tuple[JointCandidates, dict]:
     """Section 6's refinement from the discrete solution and, with ``bind_start``, from the pose.
 
@@ -561,18 +564,28 @@ def _refine_both(problem, conf: JointCandidates, reference: np.ndarray,
     against 4.67 from the pose). The pose's result is kept only when it has the lower
     E_match, no more overlapping parts and no less coverage (Section 5.4's constraints):
     a limb left at its bind place where the drawing moved it can lower the energy while
-    leaving the drawn limb's contours unexplained.
+    leaving the drawn limb's contours unexplained. Both walks minimize the same energy,
+    direction prior included (which the pose's start begins with at zero); the labels
+    of a joint (its contour origin, side and visibility) stay the discrete solution's,
+    as they do for every joint the walk moves.
+
+    Args:
+        problem: The matching problem.
+        conf: The discrete solution (after the consistency step).
+        reference: The character's joints in the view at the current pose, pixels,
+            ``(J, 2)``.
+        params: Embedding parameters.
 
     Returns:
-        ``(configuration, diagnostics)`` as :func:`~.refine.refine`, with
-        ``"pose_start"``: 1 when the result comes from the pose, else 0.
+        ``(configuration, diagnostics)`` as :func:`~.refine.refine` for the walk kept
+        (its ``"energy_before"`` is that walk's start), with ``"pose_start"``: 1 when
+        the result comes from the pose, else 0.
     """
     out, info = refine(problem, conf, reference, params.refine)
     info["pose_start"] = 0
     if not params.bind_start:
         return out, info
-    at_pose = JointCandidates(np.asarray(reference, float).copy(), conf.radii, conf.side,
-                              conf.origin, conf.group, conf.unary, conf.aligned)
+    at_pose = with_positions(conf, np.asarray(reference, float).copy())
     alt, alt_info = refine(problem, at_pose, reference, params.refine)
     if alt_info["energy_after"] >= info["energy_after"]:
         return out, info

@@ -375,6 +375,9 @@ def link_cost(problem: MatchProblem, j: int, pa: np.ndarray, ra: np.ndarray, ga:
         gb: Their contour groups, ``(Kb,)`` or ``(1,)``.
         sb: Their contour sides, ``(Kb,)`` or ``(1,)``.
         stations: Outline samples per bone.
+
+    Returns:
+        Costs, ``(Ka, Kb)``.
     """
     if problem.solving.joint_link_bone[j] < 0:
         return rigid_cost(problem.drawing, pa, pb, problem.link_offset[j], problem.params,

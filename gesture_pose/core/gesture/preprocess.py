@@ -91,16 +91,25 @@ class Drawing:
             points: Pixel positions, shape ``(..., 2)``.
 
         Returns:
-            ``(distance (...), sample (...))``; points outside the field get ``inf``.
+            ``(distance (...), sample (...))``; points outside the field get distance
+            ``inf`` and a sample index that means nothing (every caller masks them by
+            distance).
         """
         points = np.asarray(points, float)
         return self.lookup_xy(points[..., 0], points[..., 1])
 
     def lookup_xy(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`lookup` with the coordinates apart, ``x, y (...)`` pixels.
+        """:meth:`lookup` with the coordinates apart.
 
         Points outside the field read a sentinel cell past the field's end (distance
         ``inf``, the owner of the last cell), so one gather serves every point.
+
+        Args:
+            x: Pixel x coordinates, any shape.
+            y: Pixel y coordinates, the same shape.
+
+        Returns:
+            ``(distance, sample)`` as :meth:`lookup`, shaped like ``x``.
         """
         h, w = self.field_dist.shape
         ix = np.floor((x - self.field_origin[0]) / self.field_cell + 0.5).astype(np.int64)

@@ -182,7 +182,18 @@ def _chain_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
 
 def _conf_link(problem: MatchProblem, conf: JointCandidates, j: int, pa: np.ndarray,
                pb: np.ndarray) -> np.ndarray:
-    """Joint ``j``'s link cost with the configuration's labels, positions moved, ``(Ka, Kb)``."""
+    """Joint ``j``'s link cost with the configuration's labels, positions moved.
+
+    Args:
+        problem: The matching problem.
+        conf: The configuration's labels (radii, groups, sides).
+        j: The joint whose link to its parent is costed.
+        pa: Parent positions, pixels, ``(Ka, 2)``.
+        pb: Joint ``j``'s positions, pixels, ``(Kb, 2)``.
+
+    Returns:
+        Costs, ``(Ka, Kb)``.
+    """
     p = problem.solving.joint_parent[j]
     return link_cost(problem, j, pa, conf.radii[[p]], conf.group[[p]], conf.side[[p]], pb,
                      conf.radii[[j]], conf.group[[j]], conf.side[[j]])
@@ -212,8 +223,8 @@ def _same_side(problem: MatchProblem, old: np.ndarray, trial: np.ndarray,
     return np.all(side_new * side_old[None] >= 0, axis=1)
 
 
-def _with(conf: JointCandidates, positions: np.ndarray) -> JointCandidates:
-    """``conf`` with its joints moved to ``positions`` ``(J, 2)``."""
+def with_positions(conf: JointCandidates, positions: np.ndarray) -> JointCandidates:
+    """``conf``'s labels (radii, sides, origins, groups, unaries) at ``positions`` ``(J, 2)``."""
     return JointCandidates(positions, conf.radii, conf.side, conf.origin, conf.group,
                            conf.unary, conf.aligned)
 
@@ -287,6 +298,7 @@ def _walk_group(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
         return pos
     trials = np.concatenate([pos[grp][None], moved[ok]])
     energy = _set_energy(problem, conf, pos, grp, trials)
+    energy = np.where(np.isfinite(energy), energy, np.inf)
     k = int(np.argmin(energy[1:]))
     if energy[1 + k] >= energy[0] - 1e-6:
         return pos
@@ -309,6 +321,9 @@ def _set_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
         pos: Current joint positions, pixels, ``(J, 2)``.
         idx: The moved joints, ``(k,)``.
         moved: Their positions in each trial, pixels, ``(T, k, 2)``.
+
+    Returns:
+        The energy of each trial, ``(T,)``.
     """
     s, d, prm = problem.solving, problem.drawing, problem.params
     par = s.joint_parent
@@ -373,7 +388,7 @@ def refine(problem: MatchProblem, conf: JointCandidates, template: np.ndarray,
                 moved += int(new is not pos)
                 pos = new
                 continue
-            cur = _with(conf, pos)
+            cur = with_positions(conf, pos)
             trial = pos[j] + rng.normal(0.0, step * eps, (params.trials, 2))
             trial = np.concatenate([pos[j:j + 1], trial])
             ok = _same_side(problem, pos[j], trial, 2.0 * conf.radii[j] + eps)
@@ -402,7 +417,7 @@ def refine(problem: MatchProblem, conf: JointCandidates, template: np.ndarray,
             trial_pos[grp] = kabsch_2d(template[grp], pos[grp])
             if np.allclose(trial_pos, pos, atol=1e-3):
                 continue
-            if np.isfinite(params.snap_slack):
+            if params.snap_slack != np.inf:
                 old, new = _set_energy(problem, conf, pos, grp,
                                        np.stack([pos[grp], trial_pos[grp]]))
                 if new > old + params.snap_slack:
