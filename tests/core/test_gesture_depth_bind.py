@@ -90,8 +90,10 @@ def test_an_untouched_limb_keeps_its_bind_depth_under_2d_noise():
     kept, err = solve(DepthOptions())
     drifted, err_paper = solve(DepthOptions(bind_weight=0.0))
     # Measured: depth -0.3065 with E_b, -0.3152 without (E_v already holds most of it on
-    # this small tree); mean joint error 2.9 mm against 5.4 mm.
-    assert abs(kept - bind_depth) < 0.01
+    # this small tree); mean joint error 2.9 mm against 5.4 mm. With E_v weighted 0.3
+    # against E_c (DepthOptions.foreshortening_weight; it holds less of it): -0.3108 with
+    # E_b, -0.3296 without, 1.8 mm against 5.7 mm (limit 0.01 -> 0.015).
+    assert abs(kept - bind_depth) < 0.015
     assert abs(drifted - bind_depth) > 2.0 * abs(kept - bind_depth)
     assert err < 0.7 * err_paper
 
