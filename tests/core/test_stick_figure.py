@@ -118,6 +118,46 @@ def test_population_fk_matches_skeleton_forward():
     assert np.allclose(heads[:, sk.index("pelvis")], sk.rest_heads[0] + x[:, :3])
 
 
+def test_rigid_fingers_are_posed_exactly_like_the_chain():
+    """Bones no gene turns below a hand (finger chains, one not inheriting its parent's
+    rotation, a base pose that bends and shifts them) are posed from constants after the
+    chain; heads, tails and frames still match the skeleton's own forward kinematics."""
+    core = humanoid_skeleton()
+    rows = [(core.names[i], core.names[core.parents[i]] if core.parents[i] >= 0 else None,
+             tuple(core.rest_heads[i]), tuple(core.rest_tails[i])) for i in range(core.n_bones)]
+    for side, sx in (("L", 1.0), ("R", -1.0)):
+        h = core.rest_tails[core.index(f"hand.{side}")]
+        parent = f"hand.{side}"
+        for k in range(3):
+            head = h + np.array([0.02 * sx * k, -0.01 * k, -0.025 * k])
+            rows.append((f"finger{k}.{side}", parent, tuple(head),
+                         tuple(head + [0.01 * sx, -0.005, -0.025])))
+            parent = f"finger{k}.{side}"
+    sk = _skeleton(rows, connected=False)
+    inherit = np.ones(sk.n_bones, bool)
+    inherit[sk.index("finger2.R")] = False
+    sk = Skeleton(names=sk.names, parents=sk.parents, rest_heads=sk.rest_heads,
+                  rest_tails=sk.rest_tails, rest_frames=sk.rest_frames,
+                  inherit_rotation=inherit, connected=sk.connected, deform=sk.deform)
+    rng = np.random.default_rng(11)
+    from gesture_pose.core.rotations import exp_map
+    base = Pose(exp_map(rng.normal(scale=0.3, size=(sk.n_bones, 3))),
+                rng.normal(scale=0.01, size=(sk.n_bones, 3)))
+    model = PoseModel(sk, humanoid_figure(sk), base)
+    fingers = [sk.index(f"finger{k}.{s}") for k in range(3) for s in "LR"]
+    rigid = np.setdiff1d(np.arange(sk.n_bones), model._chain)
+    # The left fingers are rigid; the right chain up to the non-inheriting bone is not.
+    assert {sk.index(f"finger{k}.L") for k in range(3)} <= set(rigid.tolist())
+    assert sk.index("finger2.R") in model._chain and sk.index("finger1.R") in model._chain
+    x = rng.normal(scale=0.4, size=(6, model.n_genes))
+    heads, tails, frames = model.forward(x)
+    for p in range(len(x)):
+        state = sk.forward(model.to_pose(x[p]))
+        assert np.allclose(state.heads, heads[p], atol=1e-12)
+        assert np.allclose(state.tails, tails[p], atol=1e-12)
+        assert np.allclose(state.frames[fingers], frames[p, fingers], atol=1e-12)
+
+
 def test_right_jacobian_against_finite_differences():
     rng = np.random.default_rng(0)
     from gesture_pose.core.rotations import exp_map, log_map

@@ -130,6 +130,13 @@ class PoseModel:
     _base_local: np.ndarray = field(init=False, repr=False)
     _base_offset: np.ndarray = field(init=False, repr=False)
     _tables: dict = field(init=False, repr=False, compare=False)
+    _chain: np.ndarray = field(init=False, repr=False)
+    _e_base: np.ndarray = field(init=False, repr=False)
+    _e_moved: np.ndarray = field(init=False, repr=False)
+    _root_moved: int = field(init=False, repr=False)
+    _moved_compact: np.ndarray = field(init=False, repr=False)
+    _root_compact: int = field(init=False, repr=False)
+    _rigid: tuple = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         """Flatten the groups into per-(bone, gene) entries and cache descendant masks."""
@@ -169,25 +176,66 @@ class PoseModel:
         for i in range(sk.n_bones):
             desc[i, sk.descendants(i)] = True
         object.__setattr__(self, "_desc", desc)
+        moved = np.unique(np.concatenate([e_bone, [fig.root_bone]]))
+        object.__setattr__(self, "_moved", moved)
+        where = np.full(sk.n_bones, -1)
+        where[moved] = np.arange(moved.size)
+        object.__setattr__(self, "_e_base", self.base.rotations[e_bone])
+        object.__setattr__(self, "_e_moved", where[e_bone])
+        object.__setattr__(self, "_root_moved", int(where[fig.root_bone]))
+        object.__setattr__(self, "_tables", {})
+        base_local = sk.rest_frames @ self.base.rotations
+        base_offset = np.einsum("nij,nj->ni", sk.rest_frames, self.base.translations)
+        # The chain: the bones the genes turn, the bones that do not inherit their
+        # parent's rotation, their ancestors and the bones nothing turns. The others
+        # (fingers below a hand) are rigid: their local frames and offsets are always the
+        # base pose's, so they need no per-individual copies of them and are posed after
+        # the chain from constants (the same floating-point operations, bit-identical).
+        inherit_all = np.asarray(sk.inherit_rotation, bool)
+        turned = np.zeros(sk.n_bones, bool)
+        turned[moved] = True
+        under = turned.copy()  # turned or below a turned bone
+        for level in sk._levels:
+            par = sk.parents[level]
+            has = par >= 0
+            under[level[has]] |= under[par[has]]
+        chain = ~under | turned | (under & ~inherit_all)
+        for b in np.flatnonzero(chain & under).tolist():
+            chain[sk.ancestors(b)] = True
+        chain_idx = np.flatnonzero(chain)
+        compact = np.full(sk.n_bones, -1)
+        compact[chain_idx] = np.arange(chain_idx.size)
         levels = []
         for level in sk._levels:
+            level = level[chain[level]]
             par = sk.parents[level]
             root = par < 0
             ri, ci, cp = level[root], level[~root], par[~root]
             # Empty root sets and all-inheriting levels skip their numpy calls (a gene
             # vector's forward pass is dominated by their count, not their size).
-            inherit = np.asarray(sk.inherit_rotation[ci], bool)
-            levels.append((ri if ri.size else None, ci, cp,
+            inherit = inherit_all[ci]
+            if not (ri.size or ci.size):
+                continue
+            levels.append((ri if ri.size else None, compact[ri], ci, compact[ci], cp,
                            np.swapaxes(sk.rest_frames[cp], 1, 2),
                            None if inherit.all() else inherit[:, None, None],
                            sk.rest_heads[ci] - sk.rest_heads[cp]))
         object.__setattr__(self, "_level_data", tuple(levels))
-        moved = np.unique(np.concatenate([e_bone, [fig.root_bone]]))
-        object.__setattr__(self, "_moved", moved)
-        object.__setattr__(self, "_tables", {})
-        object.__setattr__(self, "_base_local", sk.rest_frames @ self.base.rotations)
-        object.__setattr__(self, "_base_offset", np.einsum(
-            "nij,nj->ni", sk.rest_frames, self.base.translations))
+        object.__setattr__(self, "_chain", chain_idx)
+        object.__setattr__(self, "_moved_compact", compact[moved])
+        object.__setattr__(self, "_root_compact", int(compact[fig.root_bone]))
+        # The rigid bones, level by level (parents first), with their constant local
+        # frames and offsets: the same operations as for a chain bone of the base pose.
+        rigid = []
+        for level in sk._levels:
+            ki = level[~chain[level]]
+            if ki.size:
+                kp = sk.parents[ki]
+                rigid.append((ki, kp, np.swapaxes(sk.rest_frames[kp], 1, 2), base_local[ki],
+                              (sk.rest_heads[ki] - sk.rest_heads[kp]) + base_offset[ki]))
+        object.__setattr__(self, "_rigid", tuple(rigid))
+        object.__setattr__(self, "_base_local", base_local[chain_idx])
+        object.__setattr__(self, "_base_offset", base_offset[chain_idx])
         state = sk.forward(self.base)
         r = fig.root_bone
         object.__setattr__(self, "_root_carry", sk.parent_carry(r, state))
@@ -230,18 +278,33 @@ class PoseModel:
             ``(Q, phi)``: local rotations ``(P, n, 3, 3)`` and per group bone the rotation
             vectors ``phi = B g / k`` in group order, ``(P, n_entries, 3)``.
         """
+        return self._turns(genes, full=True)
+
+    def _turns(self, genes: np.ndarray, full: bool) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`local_rotations` of every bone, or (``full`` False) of the moved ones.
+
+        Returns:
+            ``(Q, phi)``; ``Q`` is ``(P, n, 3, 3)`` or, not ``full``, ``(P, m, 3, 3)`` for
+            the bones the genes turn (``_moved``, the same values).
+        """
         x = np.atleast_2d(genes)
         P = x.shape[0]
-        Q = np.broadcast_to(self.base.rotations, (P,) + self.base.rotations.shape).copy()
+        base = self.base.rotations
+        if full:
+            e_bone, r = self._e_bone, self.figure.root_bone
+            Q = np.broadcast_to(base, (P,) + base.shape).copy()
+        else:
+            # Every moved bone is a group bone or the root: all are set below.
+            e_bone, r = self._e_moved, self._root_moved
+            Q = np.empty((P, self._moved.size, 3, 3))
         g = np.where(self._e_valid, x[:, self._e_genes], 0.0)
         phi = np.einsum("eij,pej->pei", self._e_basis, g)
         # One exponential call for the group bones and the root's turn (the last row).
         E = fast_exp(np.concatenate([phi, x[:, None, 3:6]], axis=1))
-        Q[:, self._e_bone] = Q[:, self._e_bone] @ E[:, :-1]
+        Q[:, e_bone] = self._e_base @ E[:, :-1]
         C = self._root_carry
         G = E[:, -1]
-        r = self.figure.root_bone
-        Q[:, r] = C.T @ G @ C @ self.base.rotations[r]
+        Q[:, r] = C.T @ G @ C @ base[self.figure.root_bone]
         return Q, phi
 
     def forward(self, genes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -269,35 +332,47 @@ class PoseModel:
     def _forward(self, genes: np.ndarray, rotations: bool = False) -> tuple[np.ndarray, ...]:
         """:meth:`forward` plus the group bones' rotation vectors ``(P, entries, 3)``.
 
-        With ``rotations`` the local rotations ``(P, n, 3, 3)`` follow as a fifth item.
+        The chain bones (``_chain``) are posed level by level from per-individual local
+        frames and offsets, then the rigid ones (fingers below a hand) from their base
+        pose's constants. With ``rotations`` the local rotations ``(P, n, 3, 3)`` follow
+        as a fifth item.
         """
         sk = self.skeleton
         x = np.atleast_2d(genes)
         P, n = x.shape[0], sk.n_bones
-        Q, phi = self.local_rotations(x)
+        moved = self._moved
+        if rotations:
+            Q, phi = self._turns(x, full=True)
+            Qm = Q[:, moved]
+        else:
+            Qm, phi = self._turns(x, full=False)
         rest = sk.rest_frames
         # Only the group bones and the root turn and only the root moves: the other
-        # bones' local frames and offsets are the base pose's (cached).
-        moved = self._moved
-        local = np.broadcast_to(self._base_local, (P, n, 3, 3)).copy()
-        local[:, moved] = rest[moved] @ Q[:, moved]
+        # chain bones' local frames and offsets are the base pose's (cached).
+        local = np.broadcast_to(self._base_local, (P,) + self._base_local.shape).copy()
+        local[:, self._moved_compact] = rest[moved] @ Qm
         r = self.figure.root_bone
-        offset = np.broadcast_to(self._base_offset, (P, n, 3)).copy()
+        offset = np.broadcast_to(self._base_offset, (P,) + self._base_offset.shape).copy()
         t_root = self.base.translations[r] + x[:, :3] @ self._root_hcarry @ rest[r]
-        offset[:, r] = np.einsum("ij,pj->pi", rest[r], t_root)
+        offset[:, self._root_compact] = np.einsum("ij,pj->pi", rest[r], t_root)
         frames = np.empty((P, n, 3, 3))
         heads = np.empty((P, n, 3))
-        for ri, ci, cp, rest_t, inherit, rel0 in self._level_data:
+        for ri, rc, ci, cc, cp, rest_t, inherit, rel0 in self._level_data:
             if ri is not None:
-                frames[:, ri] = local[:, ri]
-                heads[:, ri] = sk.rest_heads[ri] + offset[:, ri]
+                frames[:, ri] = local[:, rc]
+                heads[:, ri] = sk.rest_heads[ri] + offset[:, rc]
             if ci.size:
                 carry = frames[:, cp] @ rest_t
-                turned = carry @ local[:, ci]
+                turned = carry @ local[:, cc]
                 frames[:, ci] = turned if inherit is None else np.where(
-                    inherit, turned, local[:, ci])
-                rel = rel0 + offset[:, ci]
+                    inherit, turned, local[:, cc])
+                rel = rel0 + offset[:, cc]
                 heads[:, ci] = heads[:, cp] + np.einsum("pnij,pnj->pni", carry, rel)
+        for ki, kp, rest_t, local_k, rel in self._rigid:
+            carry = frames[:, kp] @ rest_t
+            frames[:, ki] = carry @ local_k
+            heads[:, ki] = heads[:, kp] + np.einsum(
+                "pnij,pnj->pni", carry, np.broadcast_to(rel, (P,) + rel.shape))
         tails = heads + frames[..., 1] * sk.lengths[:, None]
         if rotations:
             return heads, tails, frames, phi, Q
