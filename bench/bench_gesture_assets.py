@@ -34,13 +34,23 @@ HEADERS = ["frame", "view", "joints", "2D error %h", "3D error %h", "bind pose %
 VIEWS = {"front": (0.0, 1.0, 0.0), "3/4": (0.6, 1.0, 0.15)}
 
 
-def _drawings(scene, arm, camera, frames) -> list:
-    """Truth and traced contours per frame: ``[(frame, ArmatureData, TracedContours)]``."""
+def _drawings(scene, arm, direction, frames) -> list:
+    """Truth, traced contours and camera per frame.
+
+    Each pose is seen through its own camera, framed on the posed character (its deformed
+    mesh): the CMU poses move and turn the body, and a camera framed on the rest pose cut
+    off feet and raised hands.
+
+    Returns:
+        ``[(frame, ArmatureData, TracedContours, Camera)]``.
+    """
     import bpy
 
     from gesture_pose.blender.read_armature import read_armature
     from gesture_pose.blender.read_mesh import read_skinned_meshes
+    from gesture_pose.blender.read_view import camera_from_object
     from gesture_pose.core.gesture.trace import trace_contours
+    from sample_scenes import builders
 
     out = []
     for k in frames:
@@ -48,7 +58,14 @@ def _drawings(scene, arm, camera, frames) -> list:
         bpy.context.view_layer.update()
         truth = read_armature(arm)
         md = read_skinned_meshes(arm, truth.skeleton)
-        out.append((k, truth, trace_contours(md.deformed_vertices, md.triangles, camera)))
+        cam = builders.add_camera(md.deformed_vertices, direction=direction,
+                                  resolution=(800, 800), margin=1.4, name=f"Camera {k}")
+        camera = camera_from_object(cam, scene)
+        data = cam.data
+        bpy.data.objects.remove(cam)
+        bpy.data.cameras.remove(data)
+        out.append((k, truth, trace_contours(md.deformed_vertices, md.triangles, camera),
+                    camera))
     return out
 
 
@@ -90,24 +107,18 @@ def pose_table(quick: bool) -> tuple[str, list[str], list[list]] | None:
     """The whole Pose on CMU poses of the Adventurer (None without the assets)."""
     if not ADVENTURER.exists():
         return None
-    from gesture_pose.blender.read_view import camera_from_object
-    from sample_scenes import builders
-
-    scene, arm, rest, meshes = load_adventurer()
+    scene, arm, rest, _ = load_adventurer()
     # Every 4th pose from the front, every 8th from three-quarters (about 2 minutes).
     plan = {"front": (1, 21)} if quick else {"front": tuple(range(1, 41, 4)),
                                              "3/4": tuple(range(1, 41, 8))}
     views = tuple(plan)
     rows = []
     for view, frames in plan.items():
-        cam = builders.add_camera(arm, direction=VIEWS[view],
-                                  resolution=(800, 800), margin=1.4, name=f"Camera {view}")
-        camera = camera_from_object(cam, scene)
         anim = arm.animation_data
         action, slot = anim.action, anim.action_slot
-        drawings = _drawings(scene, arm, camera, frames)
+        drawings = _drawings(scene, arm, VIEWS[view], frames)
         anim.action = None  # the bind pose must stay when frames change
-        for k, truth, traced in drawings:
+        for k, truth, traced, camera in drawings:
             rows.append(_pose_row(arm, camera, view, k, truth, traced))
         anim.action = action
         anim.action_slot = slot
