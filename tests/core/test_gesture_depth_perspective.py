@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from gesture_pose.core.camera import Camera
 from gesture_pose.core.gesture.depth import DepthOptions, energies, solve_pose3d, start, twist
@@ -178,20 +179,26 @@ def _two_legs() -> Skeleton:
                     connected=np.array(connected), deform=np.ones(n, bool))
 
 
-def test_a_knee_the_hinge_tests_leave_open_takes_the_more_bent_side():
-    """A thigh raised at the viewer seen obliquely, its knee bent 120 degrees: both depth
-    sides of the shin bend the knee the natural way. With the hinge-plane test off, the
-    leg hanging from the hips (the left/right pair nearest the root) takes the more bent
-    side, the knee's; a leg without a partner is left undecided (the default side), as
+@pytest.mark.parametrize("thigh,knee,ortho", [
+    (-75.0, 120.0, 3.0), (-90.0, 140.0, 3.0), (-100.0, 150.0, 3.0), (-60.0, 160.0, 3.0),
+    (-75.0, 120.0, None), (-90.0, 140.0, None),
+])
+def test_a_knee_the_hinge_tests_leave_open_takes_the_more_bent_side(thigh, knee, ortho):
+    """A thigh raised at the viewer seen obliquely, its knee bent 120-160 degrees: both
+    depth sides of the shin bend the knee the natural way. With the hinge-plane test off,
+    the leg hanging from the hips (the left/right pair nearest the root) takes the more
+    bent side, the knee's, also past 90 degrees (where the bend's sine falls again) and
+    through a perspective camera (the two sides compared as mirror images about the view
+    plane). A leg without a partner is left undecided (the default side), as
     test_a_shin_below_a_thigh_at_the_viewer_bends_in_the_knees_plane asserts."""
     from gesture_pose.core.gesture.embedding import posed_joints
 
     sk = _two_legs()
     s = solving_skeleton(sk)
     cam = Camera.look_at([3.0, -6.0, 0.8], [0.0, 0.0, 0.8], width=800, height=600,
-                         ortho_scale=3.0)
+                         ortho_scale=ortho)
     pose = Pose.identity(sk.n_bones)
-    for bone, angle in ((4, -75.0), (5, 120.0)):
+    for bone, angle in ((4, thigh), (5, knee)):
         state = sk.forward(pose)
         world = exp_map(np.array([np.radians(angle), 0.0, 0.0]))
         frame = state.frames[bone]
@@ -203,7 +210,7 @@ def test_a_knee_the_hinge_tests_leave_open_takes_the_more_bent_side():
     truth = float(np.sign(cam.depth(tj[[s.tail_joint[k]]])[0]
                           - cam.depth(tj[[s.head_joint[k]]])[0]))
     jmap = twist.joint_map(sk, s)
-    frame = energies.view_frame(cam, s.rest_joints.mean(axis=0))
+    frame = energies.view_frame(cam, s.rest_joints.mean(axis=0), perspective=ortho is None)
     bind = Pose.identity(sk.n_bones)
     signs = np.full(jmap.n_bones, -truth)
     signs[int(np.flatnonzero(s.bones == 4)[0])] = -1.0  # the thigh towards the viewer

@@ -55,11 +55,12 @@ class DepthOptions:
     Attributes:
         alpha: Weight of the drawing energies against the unit stabilizer of Eq. 9
             (paper: 200).
-        foreshortening_weight: Weight of E_v (Eq. 7) against E_c (ours; the weights within
-            E_v are the paper's, Eq. 6). At 1 E_v kept links drawn at 60-90% of the
-            drawing's average foreshortening near the view plane, which on motion-capture
-            poses (where most links are foreshortened) flattened hands and shins it had
-            started on their right side. Mean 3D error, % of the height, at 1 / 0.5 /
+        foreshortening_weight: Weight of E_v (Eq. 7) against E_c (ours; 1 is the paper's
+            sum E_c + E_v, and the weights within E_v are the paper's, Eq. 6). At 1 E_v
+            kept links drawn at 60-90% of the drawing's average foreshortening near the
+            view plane, which on motion-capture poses (where most links are
+            foreshortened) flattened hands and shins it had started on their right side.
+            Mean 3D error, % of the height, at 1 / 0.5 /
             0.3 / 0.2 / 0.1 / 0: CMU poses on the Adventurer (exact embeddings) 7.30 /
             6.72 / 6.39 / 6.21 / 6.24 / 5.95, the sample characters' exact embeddings
             4.06 / 3.68 / 3.60 / 3.56 / 3.50 / 3.09, the 25 traced drawings (cached 2D
@@ -222,7 +223,8 @@ class Pose3DResult:
         bones: Full-skeleton indices of the solving bones, shape ``(m,)``.
         joints3d: Solved joint positions, world units, shape ``(J, 3)``.
         e_conformity: E_c at the solution (Eq. 5).
-        e_foreshortening: E_v at the solution (Eq. 7).
+        e_foreshortening: E_v at the solution (Eq. 7), times
+            ``DepthOptions.foreshortening_weight`` (as the solve weighs it).
         e_spline: Limb-spline energy at the solution.
         iterations: SQP iterations.
         converged: Whether the step or the energy decrease fell under its tolerance.

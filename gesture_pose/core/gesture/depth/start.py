@@ -437,13 +437,14 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         axis = np.cross(rest_dir[parent], rest_dir[bone])
         if not (natural_bend and hinge[k] and np.linalg.norm(axis) >= np.sin(min_bend)):
             return None
-        # The two sides as mirror images about the view plane through the head: through a
-        # perspective camera both ray intersections lie nearer the viewer when the ray is
-        # tilted, which would make both bends look alike.
+        # The two sides as mirror images about the view plane through the head (the same
+        # length and image direction, opposite depths): through a perspective camera both
+        # ray intersections lie nearer the viewer when the ray is tilted, which would make
+        # both bends look alike, and they differ sideways too.
         mid = 0.5 * (sides[0] + sides[1])
         mid = mid - float(mid @ frame.forward) * frame.forward
-        half = 0.5 * (sides[0] - sides[1])
-        cands = [mid + half, mid - half]
+        lift = float(0.5 * (sides[0] - sides[1]) @ frame.forward) * frame.forward
+        cands = [mid + lift, mid - lift]
         world = state.frames[parent] @ skeleton.rest_frames[parent].T
         u = state.tails[parent] - state.heads[parent]
         hinge_axis = world @ axis
@@ -458,7 +459,10 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
             if abs(off[0] - off[1]) >= min_off:
                 return 1.0 if off[0] < off[1] else -1.0
             if int(s.head_joint[index[parent]]) in hips:
-                return 1.0 if score[0] > score[1] else -1.0  # a knee: the more bent side
+                # A knee: the more bent side, the larger angle from the thigh (its cosine,
+                # not the score's sine, which falls again past 90 degrees).
+                cos = [float(u @ c) / max(float(np.linalg.norm(c)), 1e-12) for c in cands]
+                return 1.0 if cos[0] < cos[1] else -1.0
         return None
 
     return _aim_in_order(skeleton, jmap, frame, embedding, bind, signs, fixed, decide)[1]
