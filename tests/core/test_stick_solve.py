@@ -313,6 +313,8 @@ def test_limb_pin_is_placed_exactly():
     j = res.suggestions[0].joints
     target = 0.4 * j[fig.joint("pelvis")] + 0.6 * j[fig.joint("knee.R")]
     assert np.linalg.norm(j[fig.joint("wrist.R")] - target) < 1e-6
+    # The residuals cover the body pin too (after the environment pins).
+    assert len(res.suggestions[0].pin_residuals) == len(pins) + 1
     assert np.all(res.suggestions[0].pin_residuals < 1e-6)
 
 

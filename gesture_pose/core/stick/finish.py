@@ -278,8 +278,21 @@ def _reach_with_body(objective: StickObjective, x: np.ndarray, bounds: np.ndarra
 
     The root's rotation and translation and the limbs of the environment pins join
     ``genes``; the environment-pinned joints stay on their targets while the limb-pinned
-    joint goes to its point on the limb, which moves with the body (re-aimed for a few
-    rounds).
+    joint goes to its point on the limb, which moves with the body (re-aimed for up to
+    ``rounds`` rounds). A pin still out of reach after them shows in the suggestion's
+    ``pin_residuals`` and the solve's warning.
+
+    Args:
+        objective: The stick objective.
+        x: Genes, ``(G,)``.
+        bounds: Gene bounds, ``(G, 2)``.
+        pin: The body pin.
+        env_pins: The environment pins, kept on their targets.
+        genes: Genes already free for this pin.
+        rounds: Most re-aims of the pin's target as the limb moves.
+
+    Returns:
+        The genes, ``(G,)``.
     """
     model = objective.model
     fig = model.figure

@@ -63,7 +63,9 @@ GA_SEEDS = 3
 #: Refined individuals whose depth flips are tried.
 FLIPPED_SEEDS = 2
 #: Root gene change (radians and world units) below which a spine-mirrored seed is the
-#: seed itself (its spine within about 3 degrees of the view plane) and is not tried.
+#: seed itself and is not tried: a turn of the root below about 3 degrees, i.e. a spine
+#: within about 1.4 degrees of the view plane (mirroring a spine at angle phi turns it by
+#: 2 phi).
 MIRROR_MIN = 0.05
 #: Depth interpretations whose collisions are checked (the most plausible without them).
 SCREENED = 64
@@ -136,7 +138,8 @@ class Suggestion:
             were placed exactly; suggestions are sorted by it.
         terms: Unweighted energy terms and the ranking's foreshortening.
         joints: World stick joint positions, shape ``(J, 3)``.
-        pin_residuals: Distance of each environment pin from its target, ``(k,)``.
+        pin_residuals: Distance of each pinned joint from its target, the environment
+            pins then the body pins (a point on a limb), world units, ``(k,)``.
     """
 
     pose: Pose
@@ -648,7 +651,10 @@ def _suggestion(objective: StickObjective, x: np.ndarray, env_pins, score: float
     e, terms = objective.evaluate(x[None])
     _, rank_terms = plausibility(objective, x[None], weights)
     joints = model.figure.joint_positions(heads, tails)[0]
-    res = np.array([np.linalg.norm(joints[p.joint] - p.target) for p in env_pins])
+    res = np.array([np.linalg.norm(joints[p.joint] - p.target) for p in env_pins]
+                   + [np.linalg.norm(joints[p.joint] - (1.0 - p.s) * joints[p.limb[0]]
+                                     - p.s * joints[p.limb[1]])
+                      for p in objective.limb_pins])
     terms = {k: float(v[0]) for k, v in terms.items()}
     terms["foreshortening"] = float(rank_terms["foreshortening"][0])
     return Suggestion(model.to_pose(x), x, float(e[0]), score, terms, joints, res)
