@@ -6,7 +6,7 @@ import numpy as np
 
 from gesture_pose.core.camera import Camera
 from gesture_pose.core.rotations import exp_map, rotation_between
-from gesture_pose.core.skeleton import Skeleton
+from gesture_pose.core.skeleton import Pose, Skeleton
 
 
 def frame_along(direction: np.ndarray, roll: float = 0.0) -> np.ndarray:
@@ -61,3 +61,23 @@ def front_camera(ortho: bool = False) -> Camera:
         [0.0, -6.0, 0.8], [0.0, 0.0, 0.8], width=800, height=600,
         ortho_scale=3.0 if ortho else None,
     )
+
+
+def turned_about_x(skeleton: Skeleton, pose: Pose, turns) -> Pose:
+    """``pose`` with bones turned in world space about the x axis, one after the other.
+
+    Args:
+        skeleton: The skeleton.
+        pose: The starting pose.
+        turns: ``(bone, degrees)`` pairs, applied in order (a parent before its child).
+
+    Returns:
+        The new pose.
+    """
+    for bone, angle in turns:
+        state = skeleton.forward(pose)
+        world = exp_map(np.array([np.radians(angle), 0.0, 0.0]))
+        frame = state.frames[bone]
+        pose = pose.with_rotations(np.array([bone]),
+                                   (frame.T @ world @ frame @ pose.rotations[bone])[None])
+    return pose

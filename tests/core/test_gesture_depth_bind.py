@@ -14,7 +14,7 @@ from gesture_pose.core.gesture.embedding import posed_joints
 from gesture_pose.core.gesture.types import Embedding2D
 from gesture_pose.core.rotations import exp_map, log_map
 from gesture_pose.core.skeleton import Pose, Skeleton
-from tests.core.fixtures import frame_along, front_camera
+from tests.core.fixtures import frame_along, front_camera, turned_about_x
 
 FORWARD = np.array([0.0, 1.0, 0.0])  # front_camera's depth axis
 
@@ -328,13 +328,8 @@ def test_a_shin_below_a_thigh_at_the_viewer_bends_in_the_knees_plane():
     s = solving_skeleton(sk)
     cam = Camera.look_at([3.0, -6.0, 0.8], [0.0, 0.0, 0.8], width=800, height=600,
                          ortho_scale=3.0)
-    pose = Pose.identity(sk.n_bones)
-    for bone, angle in ((4, -75.0), (5, 120.0)):  # hip flexed at the viewer, knee bent
-        state = sk.forward(pose)
-        world = exp_map(np.array([np.radians(angle), 0.0, 0.0]))
-        frame = state.frames[bone]
-        pose = pose.with_rotations(np.array([bone]),
-                                   (frame.T @ world @ frame @ pose.rotations[bone])[None])
+    # The hip flexed at the viewer, the knee bent.
+    pose = turned_about_x(sk, Pose.identity(sk.n_bones), ((4, -75.0), (5, 120.0)))
     emb = project_embedding(sk, s, pose, cam)
     tj = posed_joints(s, sk, pose)
     knee, ankle = s.head_joint[5], s.tail_joint[5]

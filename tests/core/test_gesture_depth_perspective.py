@@ -11,7 +11,7 @@ from gesture_pose.core.gesture.depth.evaluation import joints_of
 from gesture_pose.core.gesture.depth.synthetic import project_embedding, solving_skeleton
 from gesture_pose.core.rotations import exp_map
 from gesture_pose.core.skeleton import Pose, Skeleton
-from tests.core.fixtures import chain_skeleton, tree_skeleton
+from tests.core.fixtures import chain_skeleton, tree_skeleton, turned_about_x
 
 
 def _close_camera() -> Camera:
@@ -197,13 +197,7 @@ def test_a_knee_the_hinge_tests_leave_open_takes_the_more_bent_side(thigh, knee,
     s = solving_skeleton(sk)
     cam = Camera.look_at([3.0, -6.0, 0.8], [0.0, 0.0, 0.8], width=800, height=600,
                          ortho_scale=ortho)
-    pose = Pose.identity(sk.n_bones)
-    for bone, angle in ((4, thigh), (5, knee)):
-        state = sk.forward(pose)
-        world = exp_map(np.array([np.radians(angle), 0.0, 0.0]))
-        frame = state.frames[bone]
-        pose = pose.with_rotations(np.array([bone]),
-                                   (frame.T @ world @ frame @ pose.rotations[bone])[None])
+    pose = turned_about_x(sk, Pose.identity(sk.n_bones), ((4, thigh), (5, knee)))
     emb = project_embedding(sk, s, pose, cam)
     tj = posed_joints(s, sk, pose)
     k = int(np.flatnonzero(s.bones == 5)[0])
