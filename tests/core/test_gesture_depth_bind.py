@@ -114,14 +114,7 @@ def _flexed_leg(sk: Skeleton) -> Pose:
     """Hip (bone 4) flexed 40 degrees towards the viewer, knee (bone 5) 100 degrees the way
     it bends at rest, both about the world x axis: the shin goes 60 degrees away from the
     viewer, drawn at half its length."""
-    pose = Pose.identity(sk.n_bones)
-    for bone, angle in ((4, -40.0), (5, 100.0)):
-        state = sk.forward(pose)
-        world = exp_map(np.array([np.radians(angle), 0.0, 0.0]))
-        frame = state.frames[bone]
-        pose = pose.with_rotations(np.array([bone]),
-                                   (frame.T @ world @ frame @ pose.rotations[bone])[None])
-    return pose
+    return turned_about_x(sk, Pose.identity(sk.n_bones), ((4, -40.0), (5, 100.0)))
 
 
 @pytest.mark.parametrize("limit", ["ik", "natural"])
