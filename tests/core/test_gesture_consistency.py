@@ -2,10 +2,17 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from gesture_pose.core.gesture.candidates import JointCandidates
-from gesture_pose.core.gesture.consistency import assign_contours, block_overlaps
+from gesture_pose.core.gesture.consistency import (
+    assign_contours,
+    block_overlaps,
+    stacked_counterparts,
+)
+from gesture_pose.core.gesture.costs import CostParams
 from gesture_pose.core.gesture.mrf import make_problem
 from gesture_pose.core.gesture.preprocess import preprocess
 from gesture_pose.core.gesture.solving import solving_skeleton
@@ -57,3 +64,25 @@ def test_straight_chain_has_no_overlap():
     assign = assign_contours(problem, _conf(reference, 20.0))
     assert assign.overlaps == []
     assert assign.coverage > 0.9
+
+
+def test_counterparts_the_view_superimposes_may_share_contours():
+    """Left and right legs one behind the other in the view (a side view) are drawn on the
+    same lines: they do not count as an overlap; drawn apart at bind, or with the option
+    off (the paper's non-overlap), the same folded placement does."""
+    top = Stroke(np.linspace([100.0, 320.0], [300.0, 320.0], 40))
+    bottom = Stroke(np.linspace([100.0, 280.0], [300.0, 280.0], 40))
+    drawing = preprocess([top, bottom])
+    skel = chain_skeleton(np.array([[0, 0, 0], [1.0, 0, 0], [0.1, 0, 0], [0.9, 0, 0]]))
+    skel = replace(skel, names=("leg.L", "body", "leg.R"))
+    solving = solving_skeleton(skel)
+    conf = _conf([[100.0, 300.0], [300.0, 300.0], [110.0, 300.0], [290.0, 300.0]], 20.0)
+    apart = np.array([[100.0, 300.0], [300.0, 300.0], [120.0, 100.0], [280.0, 100.0]])
+    stacked = np.array([[100.0, 300.0], [300.0, 300.0], [120.0, 300.0], [302.0, 300.0]])
+    for reference, params, overlap in ((stacked, CostParams(), False),
+                                       (apart, CostParams(), True),
+                                       (stacked, CostParams(stacked_counterparts=0.0), True)):
+        problem = make_problem(drawing, solving, 200.0, reference, params)
+        pairs = stacked_counterparts(problem)
+        assert len(pairs) == (0 if overlap else 1)
+        assert ((0, 2) in assign_contours(problem, conf).overlaps) == overlap

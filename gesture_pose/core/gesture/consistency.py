@@ -4,7 +4,8 @@ The tree MRF cannot see two constraints that span the whole drawing:
 
 - *non-overlap*: contour samples on the same side of two disjoint bones (bones sharing no
   joint), or aligned with two non-adjacent joints, mean two body parts claim one line;
-  each such pair costs ``overlap_penalty`` (10);
+  each such pair costs ``overlap_penalty`` (10), except left/right counterparts the view
+  superimposes (:func:`stacked_counterparts`, ours);
 - *coverage*: at least 85% of the drawn contour samples must be explained by some bone or
   joint.
 
@@ -86,6 +87,27 @@ def assign_contours(problem: MatchProblem, conf: JointCandidates) -> Assignment:
     return Assignment(left, right, joint_samples, covered, float(covered.mean()), overlaps)
 
 
+def stacked_counterparts(problem: MatchProblem) -> np.ndarray:
+    """Left/right joint pairs the view superimposes at the current pose, ``(p, 2)`` int.
+
+    A pair whose joints lie within ``CostParams.stacked_counterparts`` epsilons of each
+    other in the character's current pose seen in the view (a quadruped's left and right
+    legs seen from the side, one behind the other) is drawn on the same lines: its bones
+    and joints may share contour samples without counting as an overlap (ours; the paper
+    counts every pair of disjoint bones). Without it a side view's legs, which overlap
+    however they are placed, were pushed onto the other legs' outlines by the overlap
+    penalty (the 3D bench's quadruped with its tail up, seen from the side: a front leg
+    fitted to the hind legs, 94 px mean error; with it 17 px).
+    """
+    pairs = symmetric_joint_pairs(problem.solving)
+    limit = problem.params.stacked_counterparts * problem.drawing.epsilon
+    if problem.reference is None or len(pairs) == 0 or limit <= 0:
+        return np.zeros((0, 2), int)
+    ref = np.asarray(problem.reference, float)
+    gap = np.linalg.norm(ref[pairs[:, 0]] - ref[pairs[:, 1]], axis=1)
+    return pairs[gap < limit]
+
+
 def _overlaps(problem: MatchProblem, left: list[np.ndarray], right: list[np.ndarray],
               joints: list[np.ndarray], min_shared: int = 2) -> list[tuple[int, int]]:
     """Disjoint bones (and non-adjacent joints) sharing same-side samples."""
@@ -111,6 +133,14 @@ def _overlaps(problem: MatchProblem, left: list[np.ndarray], right: list[np.ndar
         touching |= at_j[:, None] & at_p[None, :]
         touching |= at_p[:, None] & at_j[None, :]
     bad = (shared >= min_shared) & ~touching
+    stacked = stacked_counterparts(problem)
+    partner = dict(zip(stacked[:, 0].tolist(), stacked[:, 1].tolist(), strict=True))
+    partner.update(zip(stacked[:, 1].tolist(), stacked[:, 0].tolist(), strict=True))
+    tail = np.asarray(s.tail_joint)
+    for b in range(m):
+        if int(tail[b]) in partner:
+            other = np.flatnonzero(tail == partner[int(tail[b])])
+            bad[b, other] = bad[other, b] = False
     out = [(int(a), int(b)) for a, b in zip(*np.nonzero(np.triu(bad, 1)), strict=True)]
     n_j = s.n_joints
     member_j = np.zeros((n_j, n_s), bool)
@@ -122,6 +152,7 @@ def _overlaps(problem: MatchProblem, left: list[np.ndarray], right: list[np.ndar
     adjacent[np.flatnonzero(has), par[has]] = True
     adjacent[par[has], np.flatnonzero(has)] = True
     bad_j = (shared_j >= min_shared) & ~adjacent
+    bad_j[stacked[:, 0], stacked[:, 1]] = bad_j[stacked[:, 1], stacked[:, 0]] = False
     out += [(-1 - int(a), -1 - int(b))
             for a, b in zip(*np.nonzero(np.triu(bad_j, 1)), strict=True)]
     return out

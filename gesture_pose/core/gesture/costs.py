@@ -60,6 +60,10 @@ class CostParams:
         transverse_crossings: The consistency term ``Cc`` counts a contour near the bone's
             axis as crossed only where it runs across the axis (ours); False counts any
             contour of the end joints within half a step of the axis.
+        stacked_counterparts: Left/right counterparts whose joints lie within this many
+            epsilons of each other in the current pose seen in the view may share contour
+            samples without an overlap (ours, see
+            :func:`~.consistency.stacked_counterparts`); 0 gives the paper's non-overlap.
     """
 
     alpha: float = np.radians(15.0)
@@ -77,6 +81,7 @@ class CostParams:
     view_lengths: bool = True
     perspective_lengths: bool = True
     transverse_crossings: bool = True
+    stacked_counterparts: float = 1.5
 
 
 def circle_alignment(drawing: Drawing, centres: np.ndarray, radii: np.ndarray,
