@@ -98,6 +98,13 @@ def stacked_counterparts(problem: MatchProblem) -> np.ndarray:
     however they are placed, were pushed onto the other legs' outlines by the overlap
     penalty (the 3D bench's quadruped with its tail up, seen from the side: a front leg
     fitted to the hind legs, 94 px mean error; with it 17 px).
+
+    Args:
+        problem: The matching problem (its ``reference``: the current pose in the view).
+
+    Returns:
+        Joint index pairs ``(left, right)``, ``(p, 2)`` int; none without a reference or
+        with the option at 0.
     """
     pairs = symmetric_joint_pairs(problem.solving)
     limit = problem.params.stacked_counterparts * problem.drawing.epsilon
