@@ -234,3 +234,11 @@ def test_bad_input_is_reported(registered):
                                                                        [0.5, -0.2, 0.8]])])
     with pytest.raises(op.InputError, match="mesh"):
         op.fit_scene_drawing(arm, sketch, camera)
+
+
+def test_overlay_colours_joints_by_the_side_of_their_bone():
+    # The side of the bone's name in any convention core/names.py reads (before, names
+    # such as 'Bip01 L Thigh' were drawn in the right side's colour).
+    names = ("Bip01 L Thigh tail", "thigh.R head", "spine tail", "mixamorig:LeftArm tail",
+             "arm_joint_L_1 tail", "DEF-shin.R.001 tail")
+    assert [op._side(n) for n in names] == ["L", "R", "C", "L", "L", "R"]

@@ -24,9 +24,9 @@ import numpy as np
 from ...core.camera import Camera
 from ...core.exceptions import InputError
 from ...core.gesture.embedding import GestureParams, fit_drawing
-from ...core.gesture.solving import mirror_name
 from ...core.gesture.trace import Perturbation, TracedContours, perturb, trace_contours
 from ...core.gesture.types import Embedding2D
+from ...core.names import side_of
 from ...core.skeleton import Pose
 from ..operator_utils import (
     FIT_OF,
@@ -116,11 +116,7 @@ def _circle(centre: np.ndarray, radius: float, n: int = 24) -> np.ndarray:
 
 def _side(name: str) -> str:
     """"L", "R" or "C" (middle) from a joint's display name."""
-    bone = name.rpartition(" ")[0]
-    if mirror_name(bone) is None:
-        return "C"
-    low = bone.lower()
-    return "L" if low.endswith(("l", "left")) or "left" in low else "R"
+    return side_of(name.rpartition(" ")[0]) or "C"
 
 
 def fit_overlay(embedding: Embedding2D) -> dict[str, list[np.ndarray]]:

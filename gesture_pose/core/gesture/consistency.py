@@ -103,8 +103,8 @@ def stacked_counterparts(problem: MatchProblem) -> np.ndarray:
         problem: The matching problem (its ``reference``: the current pose in the view).
 
     Returns:
-        Joint index pairs ``(left, right)``, ``(p, 2)`` int; none without a reference or
-        with the option at 0.
+        Joint index pairs ``(lower index, its counterpart)``, ``(p, 2)`` int; none
+        without a reference, without left/right pairs or with the option at 0.
     """
     pairs = symmetric_joint_pairs(problem.solving)
     limit = problem.params.stacked_counterparts * problem.drawing.epsilon
