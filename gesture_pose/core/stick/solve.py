@@ -26,7 +26,7 @@ from ..exceptions import SolverError
 from ..rotations import exp_map, log_map, normalize, rotation_between
 from ..skeleton import Pose, Skeleton
 from .capsules import Capsules, bone_masses, capsules_from_mesh
-from .environment import Environment, Seat, distance_grid, find_seat
+from .environment import UP_ANGLE, Environment, Seat, distance_grid, find_seat
 from .figure import CharacterFigure, character_figure, spine_joint
 from .finish import finish_pose
 from .genetic import GAConfig, genetic_search
@@ -309,7 +309,7 @@ def _pinned_root_depth(camera: Camera, pixel: np.ndarray, env_pins: tuple[EnvPin
     targets = np.array([p.target for p in env_pins])
     if any(p.joint == pelvis for p in env_pins):
         return float(np.mean(camera.depth(targets)))
-    standing = [p.target for p in env_pins if p.normal @ up > np.cos(np.radians(30.0))]
+    standing = [p.target for p in env_pins if p.normal @ up > np.cos(UP_ANGLE)]
     o, r = (a[0] for a in camera.rays(pixel[None]))
     r_flat = r - up * (r @ up)
     if standing and r_flat @ r_flat > 1e-6:
@@ -544,7 +544,7 @@ def _solve(inp: StickInput) -> StickResult:
         env_pins, limb_pins = resolve_pins(figure, stick, inp.env_pins, inp.limb_pins,
                                            offsets, cam, standing)
     support = [p.target - p.normal * offsets[p.joint] for p in env_pins
-               if p.normal @ up > np.cos(np.radians(30.0))]
+               if p.normal @ up > np.cos(UP_ANGLE)]
     if seat is not None:
         side = normalize(np.cross(up, figure.forward))
         support += [seat.point + side * hip_r, seat.point - side * hip_r]
