@@ -24,7 +24,7 @@ import numpy as np
 if __name__ == "__main__":  # run as a script (the docs pictures): the repository root
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.eval_assets import ADVENTURER, load_adventurer  # noqa: E402
+from bench.eval_assets import ADVENTURER, load_adventurer, posed_drawings  # noqa: E402
 
 HEADERS = ["character", "pose", "view", "drawing", "joints", "mean err %", "p90 err %",
            "either facing %", "L/R swaps", "coverage %", "s"]
@@ -148,32 +148,17 @@ def adventurer_rows(quick: bool) -> list[list]:
     """
     if not ADVENTURER.exists():
         return []
-    import bpy
 
     from gesture_pose.blender.operators.fit_drawing import bind_pose
-    from gesture_pose.blender.read_armature import read_armature
-    from gesture_pose.blender.read_mesh import read_skinned_meshes
-    from gesture_pose.blender.read_view import camera_from_object
     from gesture_pose.core.gesture.embedding import fit_drawing, posed_joints
-    from gesture_pose.core.gesture.trace import Perturbation, perturb, trace_contours
+    from gesture_pose.core.gesture.trace import Perturbation, perturb
     from gesture_pose.core.stroke import Stroke
-    from sample_scenes import builders
 
     scene, arm, rest, _ = load_adventurer()
     rows = []
-    for k in ((1,) if quick else range(1, 41, 4)):
-        scene.frame_set(k)
-        bpy.context.view_layer.update()
-        data = read_armature(arm)
-        md = read_skinned_meshes(arm, data.skeleton)
-        if scene.camera is not None:  # the previous pose's camera, with its data
-            old = scene.camera.data
-            bpy.data.objects.remove(scene.camera)
-            bpy.data.cameras.remove(old)
-        cam = builders.add_camera(md.deformed_vertices, direction=(0.0, 1.0, 0.0),
-                                  resolution=(800, 800), margin=1.4)
-        camera = camera_from_object(cam, scene)
-        clean = trace_contours(md.deformed_vertices, md.triangles, camera)
+    for k, data, md, camera, clean in posed_drawings(scene, arm,
+                                                     (1,) if quick else range(1, 41, 4),
+                                                     (0.0, 1.0, 0.0)):
         for drawing, traced in (("clean", clean),
                                 ("perturbed", perturb(clean, Perturbation(seed=1)))):
             t0 = time.perf_counter()

@@ -25,48 +25,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.eval_assets import ADVENTURER, load_adventurer
+from bench.eval_assets import ADVENTURER, load_adventurer, posed_drawings
 
 HEADERS = ["frame", "view", "joints", "2D error %h", "3D error %h", "bind pose %h",
            "depth signs ok", "coverage %", "Pose s"]
 
 #: Views, as directions from the character toward the camera (it faces +Y).
 VIEWS = {"front": (0.0, 1.0, 0.0), "3/4": (0.6, 1.0, 0.15)}
-
-
-def _drawings(scene, arm, direction, frames) -> list:
-    """Truth, traced contours and camera per frame.
-
-    Each pose is seen through its own camera, framed on the posed character (its deformed
-    mesh): the CMU poses move and turn the body, and a camera framed on the rest pose cut
-    off feet and raised hands.
-
-    Returns:
-        ``[(frame, ArmatureData, TracedContours, Camera)]``.
-    """
-    import bpy
-
-    from gesture_pose.blender.read_armature import read_armature
-    from gesture_pose.blender.read_mesh import read_skinned_meshes
-    from gesture_pose.blender.read_view import camera_from_object
-    from gesture_pose.core.gesture.trace import trace_contours
-    from sample_scenes import builders
-
-    out = []
-    for k in frames:
-        scene.frame_set(k)
-        bpy.context.view_layer.update()
-        truth = read_armature(arm)
-        md = read_skinned_meshes(arm, truth.skeleton)
-        cam = builders.add_camera(md.deformed_vertices, direction=direction,
-                                  resolution=(800, 800), margin=1.4, name=f"Camera {k}")
-        camera = camera_from_object(cam, scene)
-        data = cam.data
-        bpy.data.objects.remove(cam)
-        bpy.data.cameras.remove(data)
-        out.append((k, truth, trace_contours(md.deformed_vertices, md.triangles, camera),
-                    camera))
-    return out
 
 
 def _pose_row(arm, camera, view: str, k: int, truth, traced) -> list:
@@ -116,9 +81,9 @@ def pose_table(quick: bool) -> tuple[str, list[str], list[list]] | None:
     for view, frames in plan.items():
         anim = arm.animation_data
         action, slot = anim.action, anim.action_slot
-        drawings = _drawings(scene, arm, VIEWS[view], frames)
+        drawings = posed_drawings(scene, arm, frames, VIEWS[view])
         anim.action = None  # the bind pose must stay when frames change
-        for k, truth, traced, camera in drawings:
+        for k, truth, _, camera, traced in drawings:
             rows.append(_pose_row(arm, camera, view, k, truth, traced))
         anim.action = action
         anim.action_slot = slot
