@@ -150,6 +150,71 @@ def test_the_same_direction_rule_skips_the_spine_but_not_the_limbs():
     assert [e for e in res.equalities if e.startswith("straight")]
 
 
+def _unsided_figure(names: tuple[str, ...]) -> Skeleton:
+    """A trunk of three bones (hips, spine, chest, up the z axis) with two arms of two
+    bones hanging from shoulders 0.1 m either side of the chest's tail, out along x."""
+    from tests.core.fixtures import frame_along
+
+    heads = np.array([[0, 0, 0], [0, 0, 0.3], [0, 0, 0.6], [0.1, 0, 0.9], [0.5, 0, 0.9],
+                      [-0.1, 0, 0.9], [-0.5, 0, 0.9]], float)
+    tails = np.array([[0, 0, 0.3], [0, 0, 0.6], [0, 0, 0.9], [0.5, 0, 0.9], [0.9, 0, 0.9],
+                      [-0.5, 0, 0.9], [-0.9, 0, 0.9]], float)
+    frames = np.stack([frame_along(t - h) for h, t in zip(heads, tails, strict=True)])
+    return Skeleton(names, np.array([-1, 0, 1, 2, 3, 2, 5]), heads, tails, frames,
+                    np.ones(7, bool), np.array([False, True, True, False, True, False, True]),
+                    np.ones(7, bool))
+
+
+def test_the_same_direction_rule_on_a_rig_without_sides_in_its_names():
+    """The spine rule reads the spine from the bone names' sides. On a rig whose names
+    carry none ("arm_a", "arm_b") no bone is paired or mirrored, and the rule skips the
+    spine chain (root to the chest, where the arms branch) found from the joint tree: the
+    zig-zag spine gets no same-direction rows, the straight arm reaching towards the
+    viewer does, as on the same rig with sides. (Before, every joint of such a rig was
+    read as the spine's and the arms lost the rule.)"""
+    from gesture_pose.core.gesture.depth import regularity, symmetry
+
+    cam = Camera.look_at([0.0, -6.0, 0.45], [0.0, 0.0, 0.45], width=800, height=800,
+                         ortho_scale=2.0)
+    turns = [(1, 35.0), (2, -70.0), (3, -60.0)]  # spine zig-zag; arm_a 60 deg at the viewer
+    results = {}
+    for names in (("hips", "spine", "chest", "arm_a", "fore_a", "arm_b", "fore_b"),
+                  ("hips", "spine", "chest", "arm.L", "fore.L", "arm.R", "fore.R")):
+        sk = _unsided_figure(names)
+        s = solving_skeleton(sk)
+        truth = Pose.identity(sk.n_bones)
+        for bone, deg in turns:
+            state = sk.forward(truth)
+            turn = exp_map(np.array([0.0, 0.0, 1.0] if bone == 3 else [-1.0, 0.0, 0.0])
+                           * np.radians(deg))
+            truth = truth.with_rotations(np.array([bone]), (state.frames[bone].T @ turn
+                                                            @ state.frames[bone])[None])
+        emb = project_embedding(sk, s, truth, cam, 0.05)
+        res = solve_pose3d(sk, emb, cam)
+        axial = [s.joint_bones[j] for j in np.flatnonzero(regularity.axial_joints(s))]
+        results[names[3]] = (sk, s, truth, res, axial)
+    sk, s, truth, res, axial = results["arm_a"]
+    assert axial == ["hips head", "hips tail", "spine tail", "chest tail"]
+    assert len(symmetry.mirror_pairs(sk.names, np.arange(sk.n_bones))) == 0
+    assert res.symmetric == ()
+    straight = sorted({e for e in res.equalities if e.startswith("straight")})
+    assert straight == ["straight at arm_a tail"]
+    # The sided rig: the same rows at the same joint; its unsided joints are the trunk's.
+    sided = results["arm.L"]
+    assert sorted({e for e in sided[3].equalities if e.startswith("straight")}) == [
+        "straight at arm.L tail"]
+    assert sided[4] == ["hips head", "hips tail", "spine tail", "chest tail"]
+    # The arm keeps one direction, at the viewer as drawn.
+    X = res.joints3d
+    tj = joints_of(s, sk, truth)
+    elbow, wrist = s.joint_bones.index("arm_a tail"), s.joint_bones.index("fore_a tail")
+    shoulder = s.joint_bones.index("arm_a head")
+    u1, u2 = X[elbow] - X[shoulder], X[wrist] - X[elbow]
+    assert u1 / np.linalg.norm(u1) @ (u2 / np.linalg.norm(u2)) == pytest.approx(1.0, abs=1e-4)
+    np.testing.assert_allclose(X[[elbow, wrist]] - X[shoulder], tj[[elbow, wrist]] - tj[shoulder],
+                               atol=0.02)
+
+
 def _two_legs() -> Skeleton:
     """A vertical trunk of four bones with two legs hanging from hips 0.1 m either side,
     knees bent 6 degrees at rest (forward, -y, as knees), feet forward."""

@@ -331,6 +331,30 @@ def spine_chain(solving: SolvingSkeleton) -> np.ndarray:
     return np.asarray(chain, int)
 
 
+def axial_joints(solving: SolvingSkeleton) -> np.ndarray:
+    """Joints on the body's axis, where the same-direction rule does not apply (ours).
+
+    With left/right sides in the bone names these are the joints of unsided bones (spine,
+    neck, head, tail). A rig whose names carry no side at all (no bone has one) would make
+    every joint axial and lose the rule on its limbs too; there the axis is the spine
+    chain (:func:`spine_chain`, from the root to the first branch point), found from the
+    joint tree alone, and the limbs, neck and tails keep the rule.
+
+    Args:
+        solving: The solving skeleton.
+
+    Returns:
+        Shape ``(J,)`` bool.
+    """
+    sided = np.array([side_of(name.rpartition(" ")[0]) is not None
+                      for name in solving.joint_bones], dtype=bool)
+    if sided.any():
+        return ~sided
+    axial = np.zeros(solving.n_joints, bool)
+    axial[spine_chain(solving)] = True
+    return axial
+
+
 def spine_runs(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.ndarray,
                frame: ViewFrame, max_angle: float = np.radians(10.0),
                max_ratio: float = 1.05) -> np.ndarray:

@@ -40,7 +40,6 @@ import numpy as np
 
 from ...camera import Camera
 from ...exceptions import InputError, SolverError
-from ...names import side_of
 from ...skeleton import Pose, Skeleton
 from ..types import Embedding2D
 from . import energies, ordering, regularity, start, symmetry, twist
@@ -157,13 +156,15 @@ class DepthOptions:
             Off: the paper's orthographic view at the scale of the character's depth
             throughout.
         spine_parallel: Apply the same-direction rule at joints of unsided bones (spine,
-            neck, head, tail) too. Off (ours): a spine bent towards or away from the
-            viewer is drawn straight in a front view, and the hard rows between spine
-            links left the QPs infeasible (constraints softened) on 15 of the 40 CMU
-            poses, none without them. With the rule there the CMU poses on the Adventurer
-            (exact embeddings) are 8.02 % of the height off instead of 7.32; the sample
-            characters' exact embeddings are unchanged, the 25 traced drawings 7.80
-            instead of 7.86 (the traced crouch's leaning torso 12.7 instead of 14.2).
+            neck, head, tail; on a rig with no sides in its names, the spine chain's:
+            :func:`.regularity.axial_joints`) too. Off (ours): a spine bent towards or
+            away from the viewer is drawn straight in a front view, and the hard rows
+            between spine links left the QPs infeasible (constraints softened) on 15 of
+            the 40 CMU poses, none without them. With the rule there the CMU poses on the
+            Adventurer (exact embeddings) are 8.02 % of the height off instead of 7.32;
+            the sample characters' exact embeddings are unchanged, the 25 traced drawings
+            7.80 instead of 7.86 (the traced crouch's leaning torso 12.7 instead of
+            14.2).
         turn_start: For a character drawn turned around (``read_facing``), start from
             the bind pose turned half round about the view's up axis
             (:func:`.start.turned_bind`; ours): from the unturned bind pose the SQP turned
@@ -355,11 +356,10 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
                                         X_rest)
     if not opts.spine_parallel and len(triples) and len(s.joint_bones) == n_j:
         # A spine bends forward and back smoothly, which a front view draws straight: two
-        # links meeting at a joint of an unsided bone (spine, neck, head, tail) drawn in
-        # line say nothing about their depth bend.
-        sided = np.array([side_of(name.rpartition(" ")[0]) is not None
-                          for name in s.joint_bones])
-        triples = triples[sided[triples[:, 1]]]
+        # links meeting at a joint of an unsided bone (spine, neck, head, tail; the spine
+        # chain on a rig without sides in its names) drawn in line say nothing about
+        # their depth bend.
+        triples = triples[~regularity.axial_joints(s)[triples[:, 1]]]
     if opts.bind_weight > 0 and len(triples):
         # Two links drawn as in the bind pose keep their bind directions (E_b), bent or
         # not: making them one straight 3D line would move what the drawing left alone.
