@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from gesture_pose.core.camera import Camera
@@ -20,6 +22,7 @@ from gesture_pose.core.stick.objective import (
     EnvPin,
     LimbPin,
     StickObjective,
+    Weights,
     polygon_offset,
     project_jacobian,
 )
@@ -218,6 +221,30 @@ def test_residuals_square_to_the_energy_and_jacobian_matches_finite_differences(
         # rows that are smooth, i.e. everything but the environment samples.
         smooth = r1.size - int(np.sum(obj.env_capsules)) * 5
         assert np.allclose(num[:smooth], J[:smooth], rtol=1e-4, atol=1e-5)
+
+
+def test_deferred_jacobians_belong_to_their_own_points():
+    # The refinement asks for a Jacobian only at accepted points, after other trial
+    # points were evaluated: each deferred Jacobian must be its own point's, with and
+    # without collisions and foreshortening.
+    rng = np.random.default_rng(12)
+    obj, truth = problem(rng)
+    X = truth + rng.normal(scale=0.4, size=(2, truth.size))
+    X[:, 2] -= 0.3
+    for o in (obj, dataclasses.replace(obj, weights=Weights(foreshortening=0.5))):
+        for collision in (True, False):
+            first, second = (o.residuals_deferred(x, collision) for x in X)
+            for x, (r, jacobian) in zip(X[::-1], (second, first), strict=True):
+                r_all, J_all = o.residuals_and_jacobian(x, collision)
+                assert np.array_equal(r, r_all) and np.array_equal(jacobian(), J_all)
+                assert np.allclose(r, o.residuals(x[None], collision)[0], atol=1e-14)
+            h = 1e-6
+            x = X[1]
+            num = (o.residuals(x + h * np.eye(x.size), collision) -
+                   o.residuals(x - h * np.eye(x.size), collision)).T / (2 * h)
+            J = second[1]()
+            smooth = J.shape[0] - (int(np.sum(o.env_capsules)) * 5 if collision else 0)
+            assert np.allclose(num[:smooth], J[:smooth], rtol=1e-4, atol=1e-5)
 
 
 def test_distance_limit_keeps_penetrations():

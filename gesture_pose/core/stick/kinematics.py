@@ -388,7 +388,34 @@ class PoseModel:
             ``(heads (n, 3), tails (n, 3), J_heads (n, 3, G), J_tails (n, 3, G))``.
         """
         x = np.asarray(genes, float)
-        heads, tails, frames, phi = (a[0] for a in self._forward(x[None]))
+        state = self.posed(x)
+        Jh, Jt = self.jacobian_at(x, state)
+        return state[0], state[1], Jh, Jt
+
+    def posed(self, genes: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The forward pass of one gene vector that :meth:`jacobian_at` continues.
+
+        Args:
+            genes: Gene vector, shape ``(G,)``.
+
+        Returns:
+            ``(heads (n, 3), tails (n, 3), frames (n, 3, 3), phi (entries, 3))``.
+        """
+        return tuple(a[0] for a in self._forward(np.asarray(genes, float)[None]))
+
+    def jacobian_at(self, genes: np.ndarray, state: tuple[np.ndarray, ...]
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`jacobian`'s Jacobians from a forward pass already made (:meth:`posed`).
+
+        Args:
+            genes: Gene vector, shape ``(G,)``.
+            state: ``posed(genes)``.
+
+        Returns:
+            ``(J_heads (n, 3, G), J_tails (n, 3, G))``.
+        """
+        x = np.asarray(genes, float)
+        heads, tails, frames, phi = state
         n, G = self.skeleton.n_bones, x.size
         # World axis of every (bone, gene) entry, in group order.
         e = self._e_bone
@@ -409,7 +436,7 @@ class PoseModel:
         J = (onehot @ mov.reshape(len(all_bone), -1)).reshape(G, 2 * n, 3)
         J[:3] = np.eye(3)[:, None, :]
         J = np.transpose(J, (1, 2, 0))
-        return heads, tails, J[:n], J[n:]
+        return J[:n], J[n:]
 
     def _jacobian_tables(self, n_genes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Constants of :meth:`jacobian` (computed once per gene count).

@@ -38,6 +38,7 @@ Every term returns its gradient with respect to the bones' heads and tails; chai
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -510,64 +511,108 @@ class StickObjective:
         Returns:
             ``(r (R,), dr/dx (R, G))``, ``r`` in the order of :meth:`residuals`.
         """
+        r, jacobian = self.residuals_deferred(x, collision)
+        return r, jacobian()
+
+    def residuals_deferred(self, x: np.ndarray, collision: bool = True
+                           ) -> tuple[np.ndarray, Callable[[], np.ndarray]]:
+        """:meth:`residuals_and_jacobian` with the Jacobian computed only when asked for.
+
+        A trust-region step that is rejected needs the residuals at its trial point, not
+        their Jacobian. Both come from the same operations as in
+        :meth:`residuals_and_jacobian` (bit-identical).
+
+        Returns:
+            ``(r (R,), jacobian)``: ``jacobian()`` returns ``dr/dx (R, G)``.
+        """
         fig, w = self.model.figure, self.weights
-        heads, tails, Jh, Jt = self.model.jacobian(x)
+        state = self.model.posed(x)
+        heads, tails = state[0], state[1]
         G = x.size
         bones, at_tail = fig.joint_bones, fig.joint_at_tail
         joints = np.where(at_tail[:, None], tails[bones], heads[bones])
-        Jj = np.where(at_tail[:, None, None], Jt[bones], Jh[bones])  # (J, 3, G)
         q, Jq = project_jacobian(self.camera, joints)
-        dq = np.einsum("jkd,jdg->jkg", Jq, Jj)
         a, b = self._edges[:, 0], self._edges[:, 1]
         u = q[b] - q[a]
         n = np.maximum(np.linalg.norm(u, axis=-1), 1e-9)
         uh = u / n[:, None]
-        P = (np.eye(2) - uh[:, :, None] * uh[:, None, :]) / n[:, None, None]
         present = self.stick.present
         off = (q[present] - self.stick.points[present]) / self._px_scale
         sp, spp = np.sqrt(w.projection), np.sqrt(w.projection * w.position)
         rs = [sp * (uh - self._dirs).ravel(), spp * off.ravel()]
-        js = [sp * np.einsum("eij,ejg->eig", P, dq[b] - dq[a]).reshape(-1, G),
-              spp * dq[present].reshape(-1, G) / self._px_scale]
+        sb = np.sqrt(w.balance) / self.height
         if len(self._poly):
             m = self.masses / self.masses.sum()
             com = m @ (0.5 * (heads + tails))
-            dcom = np.einsum("n,ndg->dg", m, 0.5 * (Jh + Jt))
             c2 = com @ self._ground
             h = 1e-7
             o = polygon_offset(np.stack([c2, c2 + [h, 0.0], c2 + [0.0, h]]), self._poly)
-            do = np.stack([o[1] - o[0], o[2] - o[0]], 1) / h  # (2, 2): d off / d c2
-            sb = np.sqrt(w.balance) / self.height
             rs.append(sb * o[0])
-            js.append(sb * do @ self._ground.T @ dcom)
         sa = np.sqrt(w.attachment) / self.height
         for pin in self.env_pins:
             rs.append(sa * np.atleast_1d((joints[pin.joint] - pin.target) @ pin.normal))
-            js.append(sa * (pin.normal @ Jj[pin.joint])[None])
         for pin in self.limb_pins:
             i, k = pin.limb
             rs.append(sa * (joints[pin.joint] - (1 - pin.s) * joints[i] - pin.s * joints[k]))
-            js.append(sa * (Jj[pin.joint] - (1 - pin.s) * Jj[i] - pin.s * Jj[k]))
         if w.comfort > 0:
             rs.append(self.comfort_residuals(x)[0])
-            js.append(np.eye(G)[N_ROOT_GENES:] * self._comfort_scale[:, None])
         if w.foreshortening > 0:
+            # Its residuals and Jacobian come together (cheap: a few edges).
+            Jh, Jt = self.model.jacobian_at(x, state)
+            Jj = np.where(at_tail[:, None, None], Jt[bones], Jh[bones])
+            dq = np.einsum("jkd,jdg->jkg", Jq, Jj)
             rf, jf = self._foreshortening_jacobian(joints, Jj, q, dq)
             rs.append(np.sqrt(w.foreshortening) * rf)
-            js.append(np.sqrt(w.foreshortening) * jf)
+        c = np.sqrt(w.collision) / (0.05 * self.height)
+        caps = self.capsules
+        pairs = collision and len(caps.pairs)
+        env = collision and self.grid is not None and np.any(self.env_capsules)
         if collision:
-            c = np.sqrt(w.collision) / (0.05 * self.height)
-            caps = self.capsules
             start, end = caps.segments(heads, tails)
-            J0, J1 = caps.segment_jacobians(Jh, Jt)
-            if len(caps.pairs):
-                ca, cb = caps.pairs[:, 0], caps.pairs[:, 1]
-                p0, p1, q0, q1 = start[ca], end[ca], start[cb], end[cb]
-                s_, t_, d = segment_closest(p0, p1, q0, q1)
-                rr = caps.radii[ca] + caps.radii[cb]
-                pen = np.maximum(rr - d, 0.0)
-                jac = np.zeros((len(pen), G))
-                on = np.flatnonzero(pen > 0)
+        if pairs:
+            ca, cb = caps.pairs[:, 0], caps.pairs[:, 1]
+            p0, p1, q0, q1 = start[ca], end[ca], start[cb], end[cb]
+            s_, t_, d = segment_closest(p0, p1, q0, q1)
+            rr = caps.radii[ca] + caps.radii[cb]
+            pen_pairs = np.maximum(rr - d, 0.0)
+            rs.append(c * pen_pairs)
+        if env:
+            cc = np.flatnonzero(self.env_capsules)
+            radii = caps.radii[cc]
+            sm = axis_samples(5)
+            pts = start[cc, None] * (1 - sm)[:, None] + end[cc, None] * sm[:, None]
+            d_env, gd = self.grid.sample(pts, limit=1.001 * radii.max())
+            pen_env = np.maximum(radii[:, None] - d_env, 0.0)
+            rs.append(c * pen_env.ravel())
+
+        def jacobian() -> np.ndarray:
+            if w.foreshortening > 0:
+                Jh_, Jt_, Jj_, dq_ = Jh, Jt, Jj, dq
+            else:
+                Jh_, Jt_ = self.model.jacobian_at(x, state)
+                Jj_ = np.where(at_tail[:, None, None], Jt_[bones], Jh_[bones])  # (J, 3, G)
+                dq_ = np.einsum("jkd,jdg->jkg", Jq, Jj_)
+            P = (np.eye(2) - uh[:, :, None] * uh[:, None, :]) / n[:, None, None]
+            js = [sp * np.einsum("eij,ejg->eig", P, dq_[b] - dq_[a]).reshape(-1, G),
+                  spp * dq_[present].reshape(-1, G) / self._px_scale]
+            if len(self._poly):
+                dcom = np.einsum("n,ndg->dg", m, 0.5 * (Jh_ + Jt_))
+                do = np.stack([o[1] - o[0], o[2] - o[0]], 1) / h  # (2, 2): d off / d c2
+                js.append(sb * do @ self._ground.T @ dcom)
+            for pin in self.env_pins:
+                js.append(sa * (pin.normal @ Jj_[pin.joint])[None])
+            for pin in self.limb_pins:
+                i, k = pin.limb
+                js.append(sa * (Jj_[pin.joint] - (1 - pin.s) * Jj_[i] - pin.s * Jj_[k]))
+            if w.comfort > 0:
+                js.append(np.eye(G)[N_ROOT_GENES:] * self._comfort_scale[:, None])
+            if w.foreshortening > 0:
+                js.append(np.sqrt(w.foreshortening) * jf)
+            if collision:
+                J0, J1 = caps.segment_jacobians(Jh_, Jt_)
+            if pairs:
+                jac = np.zeros((len(pen_pairs), G))
+                on = np.flatnonzero(pen_pairs > 0)
                 if on.size:
                     s1, t1 = s_[on, None], t_[on, None]
                     diff = p0[on] + s1 * (p1[on] - p0[on]) - q0[on] - t1 * (q1[on] - q0[on])
@@ -576,24 +621,18 @@ class StickObjective:
                     dd = ((1 - s1)[..., None] * J0[a_] + s1[..., None] * J1[a_] -
                           (1 - t1)[..., None] * J0[b_] - t1[..., None] * J1[b_])
                     jac[on] = -np.einsum("qd,qdg->qg", un, dd)
-                rs.append(c * pen)
                 js.append(c * jac)
-            if self.grid is not None and np.any(self.env_capsules):
-                cc = np.flatnonzero(self.env_capsules)
-                radii = caps.radii[cc]
-                sm = axis_samples(5)
-                pts = start[cc, None] * (1 - sm)[:, None] + end[cc, None] * sm[:, None]
-                d, gd = self.grid.sample(pts, limit=1.001 * radii.max())
-                pen = np.maximum(radii[:, None] - d, 0.0)
-                jac = np.zeros(pen.shape + (G,))
-                ci, mi = np.nonzero(pen > 0)
+            if env:
+                jac = np.zeros(pen_env.shape + (G,))
+                ci, mi = np.nonzero(pen_env > 0)
                 if ci.size:
                     dp = ((1 - sm[mi])[:, None, None] * J0[cc[ci]] +
                           sm[mi][:, None, None] * J1[cc[ci]])
                     jac[ci, mi] = -np.einsum("kd,kdg->kg", gd[ci, mi], dp)
-                rs.append(c * pen.ravel())
                 js.append(c * jac.reshape(-1, G))
-        return np.concatenate(rs), np.concatenate(js, axis=0)
+            return np.concatenate(js, axis=0)
+
+        return np.concatenate(rs), jacobian
 
     def evaluate(self, genes: np.ndarray, collision: bool = True) -> tuple[np.ndarray, dict]:
         """Energies of a population, ``(P, G) -> ((P,), {term: (P,)})``."""

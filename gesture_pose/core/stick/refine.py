@@ -66,7 +66,7 @@ def refine_least_squares(objective: StickObjective, x0: np.ndarray, bounds: np.n
 
     The energy is ``|r(x)|^2`` (:meth:`.StickObjective.residuals`), so a trust-region
     Gauss-Newton method (scipy's ``trf``) with the analytic residual Jacobian
-    (:meth:`.StickObjective.residuals_and_jacobian`) converges in far fewer evaluations
+    (:meth:`.StickObjective.residuals_deferred`) converges in far fewer evaluations
     than L-BFGS-B on the same energy.
 
     Args:
@@ -84,20 +84,25 @@ def refine_least_squares(objective: StickObjective, x0: np.ndarray, bounds: np.n
     count = [0, 0]
     cache: dict = {}
 
-    def both(x):
+    def evaluated(x):
+        # The Jacobian is computed only when asked for: a rejected trial point needs
+        # the residuals only.
         key = x.tobytes()
         if key not in cache:
             cache.clear()
-            cache[key] = objective.residuals_and_jacobian(x, collision)
+            cache[key] = [*objective.residuals_deferred(x, collision), None]
         return cache[key]
 
     def fun(x):
         count[0] += 1
-        return both(x)[0]
+        return evaluated(x)[0]
 
     def jac(x):
         count[1] += 1
-        return both(x)[1]
+        entry = evaluated(x)
+        if entry[2] is None:
+            entry[2] = entry[1]()
+        return entry[2]
 
     res = least_squares(fun, np.clip(x0, lo, hi), jac=jac, bounds=(lo, hi), method="trf",
                         max_nfev=max_iterations, xtol=1e-8, ftol=1e-6, gtol=1e-8)
