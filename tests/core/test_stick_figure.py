@@ -156,6 +156,18 @@ def test_rigid_fingers_are_posed_exactly_like_the_chain():
         assert np.allclose(state.heads, heads[p], atol=1e-12)
         assert np.allclose(state.tails, tails[p], atol=1e-12)
         assert np.allclose(state.frames[fingers], frames[p, fingers], atol=1e-12)
+    # Without the rigid bones (the stick joints and the lifted bones only): the chain is
+    # the same to the last bit, the rigid bones are left out (NaN).
+    h2, t2, f2 = model.forward(x, rigid=False)
+    chain = model._chain
+    assert np.array_equal(h2[:, chain], heads[:, chain])
+    assert np.array_equal(t2[:, chain], tails[:, chain])
+    assert np.array_equal(f2[:, chain], frames[:, chain])
+    assert np.isnan(h2[:, rigid]).all() and np.isnan(f2[:, rigid]).all()
+    fig = model.figure
+    assert np.array_equal(fig.joint_positions(h2, t2), fig.joint_positions(heads, tails))
+    *_, Q = model.forward_rotations(x, rigid=False)
+    assert np.array_equal(Q, model.local_rotations(x)[0])
 
 
 def test_right_jacobian_against_finite_differences():

@@ -215,7 +215,7 @@ def finish_pose(objective: StickObjective, x: np.ndarray, bounds: np.ndarray,
         caps = objective.capsules
         sel = np.isin(caps.bones, b)
         standing = pin.stands and bool(_stands_upright(model, heads[:1], tails[:1], pin)[0])
-        e, _ = objective.evaluate(X, collision=False)
+        e, _ = objective.evaluate(X, collision=False, posed=(heads, tails))
         if standing:
             # A foot standing on the surface: sole down and flat (its pin puts the ankle
             # at its standing height, so the flat sole touches). The capsules, coarser

@@ -137,6 +137,7 @@ class PoseModel:
     _moved_compact: np.ndarray = field(init=False, repr=False)
     _root_compact: int = field(init=False, repr=False)
     _rigid: tuple = field(init=False, repr=False)
+    _joints_on_chain: bool = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         """Flatten the groups into per-(bone, gene) entries and cache descendant masks."""
@@ -234,6 +235,7 @@ class PoseModel:
                 rigid.append((ki, kp, np.swapaxes(sk.rest_frames[kp], 1, 2), base_local[ki],
                               (sk.rest_heads[ki] - sk.rest_heads[kp]) + base_offset[ki]))
         object.__setattr__(self, "_rigid", tuple(rigid))
+        object.__setattr__(self, "_joints_on_chain", bool(np.all(chain[fig.joint_bones])))
         object.__setattr__(self, "_base_local", base_local[chain_idx])
         object.__setattr__(self, "_base_offset", base_offset[chain_idx])
         state = sk.forward(self.base)
@@ -307,40 +309,47 @@ class PoseModel:
         Q[:, r] = C.T @ G @ C @ base[self.figure.root_bone]
         return Q, phi
 
-    def forward(self, genes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def forward(self, genes: np.ndarray, rigid: bool = True
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Posed heads, tails and frames of every bone for a population.
 
         Args:
             genes: Gene vectors, shape ``(P, G)``.
+            rigid: Also pose the bones below the chain that no gene turns (fingers below
+                a hand). Without them (for the stick joints, the gene groups' bones) their
+                entries are NaN and the others are the same to the last bit; a figure
+                with a stick joint on such a bone always poses them.
 
         Returns:
             ``(heads (P, n, 3), tails (P, n, 3), frames (P, n, 3, 3))`` in world space.
         """
-        heads, tails, frames, _ = self._forward(genes)
+        heads, tails, frames, _ = self._forward(genes, rigid=rigid)
         return heads, tails, frames
 
-    def forward_rotations(self, genes: np.ndarray
+    def forward_rotations(self, genes: np.ndarray, rigid: bool = True
                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`forward` plus the local rotations ``(P, n, 3, 3)`` it computed.
 
         Returns:
             ``(heads, tails, frames, Q)`` (:meth:`forward`, :meth:`local_rotations`).
         """
-        heads, tails, frames, _, Q = self._forward(genes, rotations=True)
+        heads, tails, frames, _, Q = self._forward(genes, rotations=True, rigid=rigid)
         return heads, tails, frames, Q
 
-    def _forward(self, genes: np.ndarray, rotations: bool = False) -> tuple[np.ndarray, ...]:
+    def _forward(self, genes: np.ndarray, rotations: bool = False, rigid: bool = True
+                 ) -> tuple[np.ndarray, ...]:
         """:meth:`forward` plus the group bones' rotation vectors ``(P, entries, 3)``.
 
         The chain bones (``_chain``) are posed level by level from per-individual local
-        frames and offsets, then the rigid ones (fingers below a hand) from their base
-        pose's constants. With ``rotations`` the local rotations ``(P, n, 3, 3)`` follow
-        as a fifth item.
+        frames and offsets, then (``rigid``) the rigid ones (fingers below a hand) from
+        their base pose's constants. With ``rotations`` the local rotations
+        ``(P, n, 3, 3)`` follow as a fifth item.
         """
         sk = self.skeleton
         x = np.atleast_2d(genes)
         P, n = x.shape[0], sk.n_bones
         moved = self._moved
+        rigid = rigid or not self._joints_on_chain
         if rotations:
             Q, phi = self._turns(x, full=True)
             Qm = Q[:, moved]
@@ -357,6 +366,9 @@ class PoseModel:
         offset[:, self._root_compact] = np.einsum("ij,pj->pi", rest[r], t_root)
         frames = np.empty((P, n, 3, 3))
         heads = np.empty((P, n, 3))
+        if not rigid and self._rigid:
+            frames.fill(np.nan)
+            heads.fill(np.nan)
         for ri, rc, ci, cc, cp, rest_t, inherit, rel0 in self._level_data:
             if ri is not None:
                 frames[:, ri] = local[:, rc]
@@ -368,7 +380,7 @@ class PoseModel:
                     inherit, turned, local[:, cc])
                 rel = rel0 + offset[:, cc]
                 heads[:, ci] = heads[:, cp] + np.einsum("pnij,pnj->pni", carry, rel)
-        for ki, kp, rest_t, local_k, rel in self._rigid:
+        for ki, kp, rest_t, local_k, rel in self._rigid if rigid else ():
             carry = frames[:, kp] @ rest_t
             frames[:, ki] = carry @ local_k
             heads[:, ki] = heads[:, kp] + np.einsum(

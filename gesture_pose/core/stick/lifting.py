@@ -144,7 +144,8 @@ def _lift(model: PoseModel, X: np.ndarray, bounds: np.ndarray, stick: StickFigur
             hinge_child[k] = kids[0]
     rays = camera.rays(stick.points[[j for _, _, j, _ in groups]])
     for tier in sorted(set(depth.values())):
-        heads, _, frames, Q = model.forward_rotations(X)
+        # Only the gene groups' bones are read: the fingers below a hand are not posed.
+        heads, _, frames, Q = model.forward_rotations(X, rigid=False)
         for k, (gi, start, _, length) in enumerate(groups):
             if depth[k] != tier:
                 continue

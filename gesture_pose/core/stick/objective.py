@@ -634,9 +634,15 @@ class StickObjective:
 
         return np.concatenate(rs), jacobian
 
-    def evaluate(self, genes: np.ndarray, collision: bool = True) -> tuple[np.ndarray, dict]:
-        """Energies of a population, ``(P, G) -> ((P,), {term: (P,)})``."""
-        heads, tails, _ = self.model.forward(genes)
+    def evaluate(self, genes: np.ndarray, collision: bool = True,
+                 posed: tuple[np.ndarray, np.ndarray] | None = None
+                 ) -> tuple[np.ndarray, dict]:
+        """Energies of a population, ``(P, G) -> ((P,), {term: (P,)})``.
+
+        ``posed``: the population's heads and tails ``(P, n, 3)`` when the caller has
+        already posed it (:meth:`.PoseModel.forward`), else None.
+        """
+        heads, tails = self.model.forward(genes)[:2] if posed is None else posed
         total, terms, _, _ = self.energies(heads, tails, collision)
         if self.weights.comfort > 0:
             c = np.sum(self.comfort_residuals(genes) ** 2, 1)

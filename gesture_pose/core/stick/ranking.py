@@ -74,7 +74,7 @@ def plausibility(objective: StickObjective, genes: np.ndarray,
     """
     x = np.atleast_2d(genes)
     heads, tails, _ = objective.model.forward(x)
-    energy, terms = objective.evaluate(x, collision)
+    energy, terms = objective.evaluate(x, collision, posed=(heads, tails))
     f = foreshortening(objective, objective.model.figure.joint_positions(heads, tails))
     score = energy + weights.foreshortening * f + weights.balance * terms["balance"]
     return score, {**terms, "energy": energy, "foreshortening": f}

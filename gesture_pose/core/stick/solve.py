@@ -223,7 +223,7 @@ def _edge_spans(model: PoseModel, lengths: np.ndarray, samples: int = 256
     """
     b = model.bounds(np.zeros(3), 0.0)
     u = np.random.default_rng(0).random((samples, b.shape[0]))
-    heads, tails, _ = model.forward(b[:, 0] + u * (b[:, 1] - b[:, 0]))
+    heads, tails, _ = model.forward(b[:, 0] + u * (b[:, 1] - b[:, 0]), rigid=False)
     joints = model.figure.joint_positions(heads, tails)
     fig = model.figure
     child = np.flatnonzero(fig.joint_parents >= 0)
@@ -574,7 +574,7 @@ def _solve(inp: StickInput) -> StickResult:
     timings["genetic"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     # Distinct good individuals of the GA (different basins), shortly refined.
-    heads, tails, _ = model.forward(ga.population[:256])
+    heads, tails, _ = model.forward(ga.population[:256], rigid=False)
     joints = figure.joint_positions(heads, tails)
     picks = _distinct(joints, np.arange(len(joints)), GA_SEEDS, 0.08 * height, np.mean)
     first = [_refine_short(objective, ga.population[i], bounds) for i in picks]
@@ -595,7 +595,7 @@ def _solve(inp: StickInput) -> StickResult:
     screened = np.argsort(cheap, kind="stable")[:SCREENED]
     pool = pool[screened]
     score, _ = plausibility(objective, pool, rank)
-    heads, tails, _ = model.forward(pool)
+    heads, tails, _ = model.forward(pool, rigid=False)
     joints = figure.joint_positions(heads, tails)
     picks = _distinct(joints, np.argsort(score, kind="stable"),
                       inp.n_suggestions + EXTRA_CANDIDATES, DISTINCT * height)
