@@ -12,8 +12,8 @@
   within half their radius of it are attracted to the quadratic fitted to the limb's 3D
   joints, ``|| ((I - H) X)_j ||^2`` with ``H`` the least-squares hat matrix of the fit.
 
-- **The spine's straight runs (ours).** Where consecutive links of the spine (from the
-  root, the unsided chain to the first branch: pelvis to chest) are drawn within 10
+- **The spine's straight runs (ours).** Where consecutive links of the body's axis (from
+  the root, the unsided chain through the chest: pelvis to head) are drawn within 10
   degrees of each other and one of them is drawn longer than it is, the joints between
   them are placed along the drawn run in the proportions of the bind pose's image
   (:func:`spine_runs`): inside the drawn torso the contours say where the run goes, not
@@ -300,7 +300,7 @@ def spline_term(embedding: Embedding2D, rest_joints: np.ndarray, frame: ViewFram
     return LinearTerm("spline", M, np.zeros(len(M)), np.full(len(M), weight))
 
 
-def spine_chain(solving: SolvingSkeleton) -> np.ndarray:
+def spine_chain(solving: SolvingSkeleton, through_branches: bool = False) -> np.ndarray:
     """The spine's joints: from the root, along unsided links, to the first branch point.
 
     At each joint the chain follows the child joint of an unsided bone (no ``.L``/``.R``
@@ -309,6 +309,10 @@ def spine_chain(solving: SolvingSkeleton) -> np.ndarray:
 
     Args:
         solving: The solving skeleton.
+        through_branches: Go on past branch points to the end of the unsided chain (the
+            body's axis up to the head: chest, neck, head). Only on a rig with sides in
+            its names, where the unsided child at the chest is the neck; without them
+            (every child unsided) the chain still stops at the first branch point.
 
     Returns:
         Joint indices, root first, shape ``(k,)`` (just the root when there is no chain).
@@ -320,13 +324,15 @@ def spine_chain(solving: SolvingSkeleton) -> np.ndarray:
             size[jp[j]] += size[j]
     # The body's root: the root of the largest tree (a prop can be a separate tree).
     chain = [int(max(np.flatnonzero(jp < 0), key=lambda r: size[r]))] if len(jp) else []
+    sided = np.array([side_of(name.rpartition(" ")[0]) is not None
+                      for name in solving.joint_bones], dtype=bool)
+    through_branches = through_branches and bool(sided.any())
     while chain:
-        kids = [int(k) for k in np.flatnonzero(jp == chain[-1])
-                if side_of(solving.joint_bones[k].rpartition(" ")[0]) is None]
+        kids = [int(k) for k in np.flatnonzero(jp == chain[-1]) if not sided[k]]
         if not kids:
             break
         chain.append(max(kids, key=lambda k: size[k]))
-        if np.sum(jp == chain[-1]) != 1:
+        if np.sum(jp == chain[-1]) != 1 and not through_branches:
             break
     return np.asarray(chain, int)
 
@@ -360,15 +366,18 @@ def spine_runs(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.n
                max_ratio: float = 1.05) -> np.ndarray:
     """Drawn joints with the spine's straight runs spaced as in the bind pose's image.
 
-    Consecutive spine links (:func:`spine_chain`) drawn within ``max_angle`` of each other
-    form a run. When one of its links is drawn longer than it can be (more than
-    ``max_ratio`` of its 3D length), the 2D fit has slid a joint along the run: the inner
-    joints are moved along the drawn polyline so that the links divide its length as their
-    bind-pose images do. The run's ends, its drawn path and every other joint stay; a run
-    drawn within its lengths keeps its joints (one link may be foreshortened). (On the
-    benchmark's traced drawings the 2D fit drew a pelvis link at 40% of its length and the
-    chest above it at 162%, which the solve read as a 47 degree pelvis tilt; the run as a
-    whole was drawn at its full length.)
+    Consecutive links of the body's axis (:func:`spine_chain` through its branch points:
+    pelvis to head) drawn within ``max_angle`` of each other form a run. When one of its
+    links is drawn longer than it can be (more than ``max_ratio`` of its 3D length), the
+    2D fit has slid a joint along the run: the inner joints are moved along the drawn
+    polyline so that the links divide its length as their bind-pose images do. The run's
+    ends, its drawn path and every other joint stay; a run drawn within its lengths keeps
+    its joints (one link may be foreshortened). (On the benchmark's traced drawings the 2D
+    fit drew a pelvis link at 40% of its length and the chest above it at 162%, which the
+    solve read as a 47 degree pelvis tilt; the run as a whole was drawn at its full
+    length. The same slide at the chest, whose tail the 2D fit draws up the neck (chests
+    at 112-193% of their length), left necks at 34-86% and heads at 14-65%, turned up to
+    90 degrees out of the view plane; hence the run through the neck to the head.)
 
     Args:
         solving: The solving skeleton.
@@ -382,7 +391,7 @@ def spine_runs(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.n
         The drawn joints, respaced, shape ``(J, 2)``.
     """
     out = np.array(joints2d, dtype=float)
-    chain = spine_chain(solving)
+    chain = spine_chain(solving, through_branches=True)
     if len(chain) < 3:
         return out
     drawn = np.diff(out[chain], axis=0)
