@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from gesture_pose.core.camera import Camera
 from gesture_pose.core.skeleton import Pose
@@ -26,7 +27,7 @@ from gesture_pose.core.stick.objective import (
     polygon_offset,
     project_jacobian,
 )
-from gesture_pose.core.stick.refine import refine, refine_least_squares
+from gesture_pose.core.stick.refine import PackedRows, refine, refine_least_squares
 from tests.core.test_stick_figure import humanoid_skeleton
 
 
@@ -274,6 +275,65 @@ def test_least_squares_refinement_converges_faster_than_lbfgs():
     assert gn.energy < lb.energy - 0.02
     longer = refine_least_squares(obj, gn.x, bounds, max_iterations=60)
     assert gn.energy - longer.energy < 1e-3 * gn.energy  # already converged
+
+
+def test_packed_rows_keep_the_gauss_newton_model():
+    # The trust-region solve sees the smooth rows and the nonzero penetrations: |r|^2,
+    # J^T J and J^T r are those of all rows; beyond k penetrations the smallest fold into
+    # one row, the norm of theirs, with the norm's gradient as its Jacobian.
+    rng = np.random.default_rng(5)
+    smooth, n_pen, G = 7, 40, 5
+    A = rng.normal(size=(smooth + n_pen, G))
+    c = rng.normal(size=smooth + n_pen)
+    c[smooth + 1::3] += 4.0  # some penetrations larger than the others
+    x0 = rng.normal(size=G)
+    r = A @ x0 + c
+    off = smooth + np.flatnonzero(rng.random(n_pen) < 0.6)  # capsules apart: zero rows
+    A[off], c[off] = 0.0, 0.0
+    r, J = A @ x0 + c, A
+    active = n_pen - off.size
+    pk = PackedRows.of(r, smooth, active + 3)
+    rp, Jp = pk.residuals(r), pk.jacobian(r, J)
+    assert rp.shape == (smooth + active + 4,) and Jp.shape == (rp.size, G)
+    assert pk.fold.size == 0 and rp[-1] == 0.0
+    assert np.isclose(rp @ rp, r @ r, rtol=1e-14)
+    assert np.allclose(Jp.T @ Jp, J.T @ J, rtol=1e-13) and np.allclose(Jp.T @ rp, J.T @ r)
+    k = active - 4
+    pk = PackedRows.of(r, smooth, k)
+    rp, Jp = pk.residuals(r), pk.jacobian(r, J)
+    assert pk.keep.size == k and pk.fold.size == 4
+    assert np.all(np.abs(r[pk.fold]).max() <= np.abs(r[pk.keep]).min())
+    assert np.isclose(rp @ rp, r @ r, rtol=1e-14)
+    h = 1e-6
+    num = [(np.linalg.norm((A @ (x0 + h * e) + c)[pk.fold]) -
+            np.linalg.norm((A @ (x0 - h * e) + c)[pk.fold])) / (2 * h) for e in np.eye(G)]
+    assert np.allclose(Jp[-1], num, atol=1e-7)
+
+
+def test_packed_refinement_ends_where_the_full_one_does():
+    # The same Gauss-Newton model: from a pose sunk into the seat (penetrations active),
+    # the refinement through the packed rows reaches the full rows' energy.
+    rng = np.random.default_rng(11)
+    obj, truth = problem(rng)
+    bounds = obj.model.bounds(np.zeros(3), 0.5)
+    x0 = np.clip(truth + rng.normal(scale=0.1, size=truth.size), *bounds.T)
+    x0[2] -= 0.5
+    full = least_squares(lambda x: obj.residuals_and_jacobian(x)[0], x0,
+                         jac=lambda x: obj.residuals_and_jacobian(x)[1],
+                         bounds=tuple(bounds.T), method="trf", max_nfev=30, xtol=1e-8,
+                         ftol=1e-6, gtol=1e-8)
+    r0, _ = obj.residuals_and_jacobian(x0)
+    assert np.count_nonzero(r0[obj.smooth_residual_count(x0.size):]) >= 3
+    packed = refine_least_squares(obj, x0, bounds, max_iterations=30)
+    assert np.isclose(packed.energy, obj.evaluate(packed.x[None])[0][0], rtol=1e-12)
+    assert abs(packed.energy - 2 * full.cost) < 1e-4 * packed.energy
+
+
+def test_smooth_residual_count_is_where_penetrations_start():
+    rng = np.random.default_rng(4)
+    obj, truth = problem(rng)
+    for o in (obj, dataclasses.replace(obj, weights=Weights(foreshortening=0.5, comfort=0.0))):
+        assert o.smooth_residual_count(truth.size) == o.residuals(truth[None], False).shape[1]
 
 
 def test_a_lying_leg_lowers_its_ankle_pin_to_the_shin_and_heel():

@@ -500,6 +500,22 @@ class StickObjective:
                 out.append(c * np.maximum(radii[None, :, None] - d, 0.0).reshape(P, -1))
         return np.concatenate(out, axis=1)
 
+    def smooth_residual_count(self, n_genes: int) -> int:
+        """How many of :meth:`residuals`' rows come before the capsule penetrations.
+
+        Those rows (Eqs. 4-10, comfort, foreshortening) keep their derivative everywhere;
+        a penetration row (Eq. 11) is zero, with a zero Jacobian row, wherever its
+        capsules do not overlap.
+
+        Args:
+            n_genes: Length of the gene vector.
+        """
+        e, p = len(self._edges), int(np.sum(self.stick.present))
+        n = 2 * e + 2 * p + (2 if len(self._poly) else 0) + len(self.env_pins)
+        n += 3 * len(self.limb_pins)
+        n += n_genes - N_ROOT_GENES if self.weights.comfort > 0 else 0
+        return n + (e if self.weights.foreshortening > 0 else 0)
+
     def residuals_and_jacobian(self, x: np.ndarray, collision: bool = True
                                ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`residuals` of one gene vector ``(G,)`` and their analytic Jacobian.
