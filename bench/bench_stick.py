@@ -155,6 +155,29 @@ def contact_pins(env, cam, figure, stick, truth: np.ndarray, offsets: np.ndarray
     return tuple(pins)
 
 
+def view_facing(figure, truth: np.ndarray, forward: np.ndarray, camera) -> str:
+    """The Facing an animator gives a posed character: ``"front"`` or ``"back"``.
+
+    Front when the character's front (its posed ``forward``), taken across its spine (the
+    pelvis to the spine joint of ``truth``), turns towards the eye: the way the search's
+    initial roots face for that option.
+
+    Args:
+        figure: The character's stick model.
+        truth: Posed stick joints, shape ``(J, 3)``.
+        forward: The posed root's facing direction, shape ``(3,)``.
+        camera: The view.
+    """
+    from gesture_pose.core.stick.figure import spine_joint
+
+    spine = truth[spine_joint(figure)] - truth[0]
+    spine = spine / np.linalg.norm(spine)
+    eye = -camera.rays(camera.project(truth[:1]))[1][0]
+    across = forward - spine * (forward @ spine)
+    towards = eye - spine * (eye @ spine)
+    return "front" if across @ towards >= 0.0 else "back"
+
+
 def cmu_cases(quick: bool):
     """The CMU poses on the Adventurer, drawn from the front-right, one per frame.
 
@@ -208,8 +231,13 @@ def cmu_cases(quick: bool):
                             np.zeros((0, 2)))
         env = _floor(floor)
         pins = contact_pins(env, cam, fig, stick, truth, offsets, floor)
+        # The stick figure carries the true left/right labels; the Facing option is the
+        # one an animator gives (the labels do not turn the body).
+        r = fig.root_bone
+        forward = state.frames[r] @ sk.rest_frames[r].T @ fig.forward
         free = StickInput(sk, cam, stick=stick, mesh_vertices=mesh.rest_vertices,
-                          mesh_weights=mesh.weights, seed=k)
+                          mesh_weights=mesh.weights, seed=k,
+                          facing=view_facing(fig, truth, forward, cam))
         pinned = dataclasses.replace(free, environment=env, env_pins=pins)
         yield k, pinned, free, truth, present, height
 

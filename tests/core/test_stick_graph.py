@@ -13,7 +13,6 @@ from gesture_pose.core.stick.graph import (
     simplify,
     stick_figure_from_strokes,
 )
-from gesture_pose.core.stick.solve import _facing
 from tests.core.test_stick_figure import humanoid_skeleton
 
 # A front-view stick figure in pixels (character's left on the image's right).
@@ -84,7 +83,7 @@ def test_left_right_follow_the_front_view_sign_test():
     assert swapped.present[swapped.joint_names.index("toe.L")]
 
 
-def test_labels_tell_which_way_the_figure_faces():
+def test_side_offsets_read_the_labels():
     strokes = [_seg(a, b) for a, b in _bones()]
     front = stick_figure_from_strokes(strokes, _figure())
     offsets = side_offsets(front)
@@ -92,15 +91,11 @@ def test_labels_tell_which_way_the_figure_faces():
     # arms' value is the difference of their means.
     assert offsets["arms"] == pytest.approx((70 + 120) / 2 - (-70 - 100) / 2)
     assert offsets["legs"] > 0
-    assert _facing(front, "front", True) == "front"
-    # Labelled from behind (Facing Back, or both pairs swapped): the search starts with
-    # the character's back to the viewer whatever the option says.
+    # Labelled from behind (Facing Back): every pair's value changes sign.
     back = stick_figure_from_strokes(strokes, _figure(), facing="back")
     assert side_offsets(back)["arms"] == pytest.approx(-offsets["arms"])
-    assert _facing(back, "front", True) == "back"
-    assert _facing(front.swapped("arms").swapped("legs"), "front", True) == "back"
-    # A non-humanoid keeps the option.
-    assert _facing(back, "front", False) == "front"
+    assert side_offsets(back)["legs"] == pytest.approx(-offsets["legs"])
+    assert side_offsets(front.swapped("arms"))["legs"] == pytest.approx(offsets["legs"])
 
 
 def test_symmetric_limbs_are_flagged_ambiguous():

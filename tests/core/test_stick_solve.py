@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from gesture_pose.core.camera import Camera
+from gesture_pose.core.exceptions import InputError
+from gesture_pose.core.rotations import exp_map
 from gesture_pose.core.skeleton import Pose
 from gesture_pose.core.stick.capsules import capsules_from_mesh
 from gesture_pose.core.stick.edit import drag_node
@@ -26,6 +28,7 @@ from gesture_pose.core.stick.objective import EnvPin
 from gesture_pose.core.stick.pins import EnvPinSpec, pin_offsets
 from gesture_pose.core.stick.solve import (
     StickInput,
+    _initial_population,
     _pinned_root_depth,
     _spine_flipped,
     solve_stick,
@@ -171,6 +174,43 @@ def test_pinned_root_starts_above_the_standing_contacts():
     wall = (EnvPin(fig.joint("wrist.R"), truth[fig.joint("wrist.R")], np.array([1.0, 0, 0])),)
     assert _pinned_root_depth(cam, stick.points[pelvis], wall, pelvis, up) == (
         pytest.approx(float(cam.depth(wall[0].target[None])[0])))
+
+
+def test_initial_roots_face_the_way_the_facing_option_says(monkeypatch):
+    # The Facing option decides which way the search's roots face, whatever the labels:
+    # arms swapped (crossed) or both pairs swapped do not turn the body.
+    sk, fig, cam, stick, _, truth = _stand_problem()
+    import gesture_pose.core.stick.solve as solve_module
+
+    seen = []
+
+    def spy(*args):
+        seen.append(args[6])
+        raise StopIteration
+
+    monkeypatch.setattr(solve_module, "_initial_population", spy)
+    for facing in ("front", "back"):
+        for labels in (stick.swapped("arms"), stick.swapped("arms").swapped("legs")):
+            with pytest.raises(StopIteration):
+                solve_stick(StickInput(sk, cam, stick=labels, facing=facing))
+    assert seen == ["front", "front", "back", "back"]
+    monkeypatch.undo()
+    model = PoseModel(sk, fig, Pose.identity(sk.n_bones))
+    bounds = model.bounds(np.zeros(3), 0.5)
+    eye = -cam.rays(cam.project(truth[:1]))[1][0]
+    for facing, sign in (("front", 1.0), ("back", -1.0)):
+        for labels in (stick, stick.swapped("arms"), stick.swapped("arms").swapped("legs")):
+            pop = _initial_population(model, bounds, 200, labels, cam, np.zeros(3), facing,
+                                      np.random.default_rng(0))
+            forward = exp_map(pop[:, 3:6]) @ fig.forward  # (P, 3)
+            towards = np.mean(sign * forward @ eye > 0.0)
+            assert towards > 0.75, (facing, towards)
+
+
+def test_facing_must_be_front_or_back():
+    sk, fig, cam, stick, pins, truth = _stand_problem()
+    with pytest.raises(InputError, match="Facing"):
+        solve_stick(StickInput(sk, cam, stick=stick, facing="left"))
 
 
 def test_spine_flip_mirrors_the_body_bend_along_the_eye_ray():

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..camera import Camera
-from ..exceptions import SolverError
+from ..exceptions import InputError, SolverError
 from ..rotations import exp_map, log_map, normalize, rotation_between
 from ..skeleton import Pose, Skeleton
 from .capsules import Capsules, bone_masses, capsules_from_mesh
@@ -30,7 +30,7 @@ from .environment import UP_ANGLE, Environment, Seat, distance_grid, find_seat
 from .figure import CharacterFigure, character_figure, spine_joint
 from .finish import finish_pose
 from .genetic import GAConfig, genetic_search
-from .graph import SNAP_RADIUS, StickFigure, side_offsets, stick_figure_from_strokes
+from .graph import SNAP_RADIUS, StickFigure, stick_figure_from_strokes
 from .kinematics import PoseModel
 from .lifting import depth_flips, lift_population
 from .normalize import drawing_scale, normalize_figure
@@ -94,7 +94,10 @@ class StickInput:
         seed: Random seed.
         n_suggestions: Distinct solutions to return.
         snap_radius: Node snapping radius, pixels.
-        facing: ``"front"`` or ``"back"`` (left/right sign test).
+        facing: ``"front"`` or ``"back"``: which way the character faces the viewer. The
+            left/right sign test labels drawn strokes by it, and the search's initial roots
+            face that way (the option decides, whatever the labels: Swap Sides exchanges
+            limbs, it does not turn the body).
         use_contact: Use a drawn contact dot rather than the pelvis for the sit location.
         ga: Genetic search settings.
         weights: Objective weights.
@@ -396,19 +399,6 @@ def _spine_flipped(model: PoseModel, x: np.ndarray, bounds: np.ndarray, camera: 
     return np.clip(out, bounds[:, 0], bounds[:, 1])
 
 
-def _facing(stick: StickFigure, facing: str, humanoid: bool) -> str:
-    """Which way the drawn labels say a humanoid faces: ``"front"`` or ``"back"``.
-
-    The drawing's left and right limbs are labelled (by the sign test with the Facing
-    option, by Swap Sides, or by whoever made the figure): left arms and legs on the
-    image's right of the spine say that the character faces the viewer, on its left that
-    it is seen from behind. A non-humanoid keeps ``facing``.
-    """
-    if not humanoid:
-        return facing
-    return "front" if sum(side_offsets(stick).values()) >= 0.0 else "back"
-
-
 def _distinct(joints: np.ndarray, order: np.ndarray, k: int, min_dist: float,
               reduce=np.max) -> list[int]:
     """Greedy pick of up to ``k`` indices, in ``order``, of poses that differ.
@@ -463,6 +453,8 @@ def _solve(inp: StickInput) -> StickResult:
     """The body of :func:`solve_stick` (same arguments, result and errors)."""
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
+    if inp.facing not in ("front", "back"):
+        raise InputError(f"Facing must be 'front' or 'back', not {inp.facing!r}.")
     sk, cam = inp.skeleton, inp.camera
     figure, humanoid = character_figure(sk, inp.ik_limits)
     stick = inp.stick or stick_figure_from_strokes(inp.strokes, figure, inp.snap_radius,
@@ -568,7 +560,7 @@ def _solve(inp: StickInput) -> StickResult:
     t0 = time.perf_counter()
     rng = np.random.default_rng(inp.seed)
     init = _initial_population(model, bounds, inp.ga.population, stick, cam,
-                               root - base_root, _facing(stick, inp.facing, humanoid), rng)
+                               root - base_root, inp.facing, rng)
     ga = genetic_search(lambda X: objective.evaluate(X, collision=False)[0], bounds, init,
                         rng, inp.ga)
     timings["genetic"] = time.perf_counter() - t0
