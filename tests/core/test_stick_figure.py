@@ -63,10 +63,42 @@ def humanoid_skeleton() -> Skeleton:
 
 
 def test_side_markers():
+    # The sides names.side_of reads (shared with the gesture mode).
     for name, side in [("upper_arm.L", "L"), ("thigh_R", "R"), ("LeftForeArm", "L"),
                        ("RightUpLeg", "R"), ("l_hand", "L"), ("Hips", ""), ("Neck1", ""),
-                       ("leg_joint_R_1", "")]:
+                       ("leg_joint_R_1", "R"), ("Bip01 L Thigh", "L"),
+                       ("DEF-thigh.L.001", "L"), ("L_Thigh", "L"), ("Root", ""),
+                       ("Lid", ""), ("mixamorig:LeftUpLeg", "L")]:
         assert bone_side(name) == side, name
+
+
+@pytest.mark.parametrize("rename", [
+    lambda n, s: f"Bip01 {s} {n}" if s else f"Bip01 {n}",  # 3ds Max Biped
+    lambda n, s: f"DEF-{n}.{s}.001" if s else f"DEF-{n}",  # Rigify duplicates
+    lambda n, s: f"{s}_{n}" if s else n,
+    lambda n, s: f"mixamorig:{dict(L='Left', R='Right')[s]}{n}" if s else f"mixamorig:{n}",
+])
+def test_humanoid_roles_in_other_naming_conventions(rename):
+    base = humanoid_skeleton()
+    words = {"pelvis": "Hips", "upper_arm": "UpperArm", "forearm": "ForeArm", "thigh": "UpLeg",
+             "shin": "Leg"}
+
+    def new(name):
+        stem, _, side = name.partition(".")
+        side = side if side in ("L", "R") else ""
+        stem = words.get(stem, stem.replace(".", "").capitalize())
+        return rename(stem, side) if name != "spine.001" else rename("Spine1", "")
+
+    names = tuple(new(n) for n in base.names)
+    assert len(set(names)) == len(names)
+    sk = Skeleton(names=names, parents=base.parents, rest_heads=base.rest_heads,
+                  rest_tails=base.rest_tails, rest_frames=base.rest_frames,
+                  inherit_rotation=base.inherit_rotation, connected=base.connected,
+                  deform=base.deform)
+    found = find_humanoid_bones(sk)
+    expected = find_humanoid_bones(base)
+    assert {r: base.names[i] for r, i in found.items()} == {
+        r: base.names[i] for r, i in expected.items()}
 
 
 def test_humanoid_roles_by_name():

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..exceptions import InputError
+from ..names import side_of
 from ..rotations import normalize
 from ..skeleton import Skeleton
 
@@ -50,25 +51,35 @@ _ROLE_WORDS: dict[str, tuple[str, ...]] = {
     "toe": ("toe", "toes", "toebase", "ball"),
 }
 _SIDED = {"upper_arm", "forearm", "hand", "thigh", "shin", "foot", "toe"}
-_SIDE_PATTERNS = (
-    (re.compile(r"([._\- ]|^)(l|left)$|^(l|left)[._\- ]|^left|left(?=[A-Z])", re.I), "L"),
-    (re.compile(r"([._\- ]|^)(r|right)$|^(r|right)[._\- ]|^right|right(?=[A-Z])", re.I), "R"),
-)
+#: Words of a bone name: runs of letters (digits and separators split them).
+_WORDS = re.compile(r"[A-Za-z]+")
+#: Words that only say a side (the side itself is read by :func:`~..names.side_of`).
+_SIDE_WORDS = {"l", "r", "left", "right"}
 
 
 def bone_side(name: str) -> str:
-    """``"L"``, ``"R"`` or ``""`` from markers such as ``.L``, ``_R``, ``Left``, ``r_``."""
-    for pattern, side in _SIDE_PATTERNS:
-        if pattern.search(name):
-            return side
-    return ""
+    """``"L"``, ``"R"`` or ``""``: the side :func:`~gesture_pose.core.names.side_of` reads.
+
+    The conventions the other modes share: suffixes (``.L``, ``_r``, ``thigh.L.001``),
+    a lone ``L``/``R`` token (``Bip01 L Thigh``, ``L_Thigh``) and the words ``Left`` and
+    ``Right`` (``LeftForeArm``).
+    """
+    return side_of(name) or ""
 
 
-def _role_word(name: str) -> str:
-    """Bone name without side markers, digits and punctuation, lower case."""
-    word = re.sub(r"([._\- ](l|r|left|right))$|^(l|r|left|right)[._\- ]", "", name, flags=re.I)
-    word = re.sub(r"^(left|right)", "", word, flags=re.I)
-    return re.sub(r"[^a-z]", "", word.lower())
+def _name_words(name: str) -> list[str]:
+    """The words of a bone name that may say its role, lower case.
+
+    Its letter runs without the words that only say a side (``L``, ``right``) and without
+    a leading ``Left``/``Right`` glued to a word (``LeftUpLeg`` -> ``upleg``).
+    """
+    words = [w for w in _WORDS.findall(name) if w.lower() not in _SIDE_WORDS]
+    return [re.sub(r"^(left|right)(?=[A-Z])", "", w, flags=re.I).lower() for w in words]
+
+
+#: Words that qualify the next one in a role (``upper_arm``, ``lower_leg``): never dropped
+#: as a rig prefix.
+_QUALIFIERS = {"upper", "lower", "up", "low", "fore"}
 
 
 @dataclass(frozen=True)
@@ -163,15 +174,24 @@ def find_humanoid_bones(skeleton: Skeleton) -> dict[str, int]:
     """
     found: dict[str, int] = {}
     usable = skeleton.deform if np.any(skeleton.deform) else np.ones(skeleton.n_bones, bool)
-    for i, name in enumerate(skeleton.names):
-        word, side = _role_word(name), bone_side(name)
-        for role, words in _ROLE_WORDS.items():
-            if word not in words or (role in _SIDED) != bool(side):
+    names = [_name_words(name) for name in skeleton.names]
+    sides = [bone_side(name) for name in skeleton.names]
+    # The whole name's words joined first (``upper_arm.L`` -> ``upperarm``); only roles
+    # still missing are then looked for without one or two leading words (rig prefixes:
+    # ``Bip01 L Thigh``, ``DEF-thigh.L``, ``mixamorig:Hips``), so that a name read whole
+    # is never overridden.
+    for depth in range(3):
+        for i, words_i in enumerate(names):
+            if depth >= len(words_i) or _QUALIFIERS & set(words_i[:depth]):
                 continue
-            key = f"{role}.{side}" if side else role
-            if key not in found and (usable[i] or role == "pelvis"):
-                found[key] = i
-            break
+            word, side = "".join(words_i[depth:]), sides[i]
+            for role, words in _ROLE_WORDS.items():
+                if word not in words or (role in _SIDED) != bool(side):
+                    continue
+                key = f"{role}.{side}" if side else role
+                if key not in found and (usable[i] or role == "pelvis"):
+                    found[key] = i
+                break
     required = ["pelvis", "neck", "head"] + [f"{r}.{s}" for s in "LR" for r in
                                              ("upper_arm", "forearm", "hand", "thigh",
                                               "shin", "foot")]
