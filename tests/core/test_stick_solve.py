@@ -241,6 +241,27 @@ def test_spine_flip_mirrors_the_body_bend_along_the_eye_ray():
     assert np.degrees(np.arccos(u0 @ u1 / np.linalg.norm(u0) / np.linalg.norm(u1))) < 1.0
 
 
+def test_spine_in_the_view_plane_has_no_mirror():
+    # A spine across the eye ray mirrors onto itself: no second seed (its depth flips
+    # would repeat the first's); tilted 5 degrees out of the view plane it has one.
+    sk = humanoid_skeleton()
+    fig = humanoid_figure(sk)
+    model = PoseModel(sk, fig, Pose.identity(sk.n_bones))
+    bounds = model.bounds(np.zeros(3), 2.0)
+    x = np.zeros(model.n_genes)
+    joints = fig.joint_positions(*model.forward(x[None])[:2])[0]
+    pelvis, d = joints[0], joints[fig.joint("neck")] - joints[0]
+    d /= np.linalg.norm(d)
+    across = np.cross(d, [1.0, 0.0, 0.0])
+    for tilt, mirrored in ((0.0, False), (5.0, True)):
+        t = np.radians(tilt)
+        eye = pelvis - 4.0 * (np.cos(t) * across + np.sin(t) * d)
+        cam = Camera.look_at(eye.tolist(), pelvis.tolist(), width=1000, height=800)
+        flipped = _spine_flipped(model, x, bounds, cam)
+        assert (flipped is not None) == mirrored, tilt
+    assert np.degrees(np.linalg.norm(flipped[3:6])) == pytest.approx(10.0, abs=0.1)
+
+
 def test_pinned_feet_stand_flat_on_the_floor():
     # Both ankles pinned to the floor: each foot ends sole down and flat on it, its lowest
     # skin (capsules) on the pin's contact plane, neither sunk nor tilted up.

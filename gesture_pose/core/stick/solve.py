@@ -371,13 +371,15 @@ def _initial_population(model: PoseModel, bounds: np.ndarray, n: int, stick: Sti
 
 
 def _spine_flipped(model: PoseModel, x: np.ndarray, bounds: np.ndarray, camera: Camera
-                   ) -> np.ndarray:
+                   ) -> np.ndarray | None:
     """``x`` with its main axis' depth mirrored: the body bent the other way along the eye.
 
     The root turns (about the pelvis) by the smallest rotation taking the pelvis-to-spine
     joint direction ``d`` to ``d - 2 (d . r) r``, ``r`` the eye ray through the pelvis:
     the spine joint projects where it did (exactly for an orthographic view), now as far
-    behind the pelvis as it was in front, or the reverse.
+    behind the pelvis as it was in front, or the reverse. A spine in the view plane
+    mirrors onto itself: when the root genes move by no more than :data:`MIRROR_MIN` there
+    is no other pose, and None is returned instead of a copy of ``x``.
 
     Args:
         model: Genes -> bones.
@@ -386,7 +388,7 @@ def _spine_flipped(model: PoseModel, x: np.ndarray, bounds: np.ndarray, camera: 
         camera: The view.
 
     Returns:
-        The flipped genes, shape ``(G,)``.
+        The flipped genes, shape ``(G,)``, or None.
     """
     fig = model.figure
     heads, tails, _ = model.forward(np.asarray(x, float)[None])
@@ -396,7 +398,8 @@ def _spine_flipped(model: PoseModel, x: np.ndarray, bounds: np.ndarray, camera: 
     turn = rotation_between(d, d - 2.0 * (d @ r) * r)
     out = np.array(x, float)
     out[3:6] = log_map(turn @ exp_map(out[3:6]))
-    return np.clip(out, bounds[:, 0], bounds[:, 1])
+    out = np.clip(out, bounds[:, 0], bounds[:, 1])
+    return out if np.linalg.norm(out[:6] - np.asarray(x, float)[:6]) > MIRROR_MIN else None
 
 
 def _distinct(joints: np.ndarray, order: np.ndarray, k: int, min_dist: float,
@@ -578,8 +581,7 @@ def _solve(inp: StickInput) -> StickResult:
     # A spine in the view plane mirrors onto itself: its flips would repeat the seed's.
     starts = [first[i].x for i in tops]
     mirrored = [_spine_flipped(model, x, bounds, cam) for x in starts]
-    starts += [f for f, x in zip(mirrored, starts, strict=True)
-               if np.linalg.norm(f[:6] - x[:6]) > MIRROR_MIN]
+    starts += [f for f in mirrored if f is not None]
     pool = np.concatenate([[r.x for r in first]] +
                           [depth_flips(model, x, bounds, stick, cam) for x in starts])
     # Collisions (the costly term) only for the most plausible without them.
