@@ -141,7 +141,9 @@ class DepthOptions:
             radians (ours, :func:`.regularity.spine_runs`); 0 disables it. Through the
             chest to the head since this round (up to the chest before): the 25 traced
             drawings with cached 2D fits 7.83 -> 7.74 % of the height (far poses 13.01
-            -> 12.81), exact embeddings 3.83 -> 3.83, CMU 6.39 -> 6.38.
+            -> 12.81), exact embeddings 3.83 -> 3.83, CMU 6.39 -> 6.38; the Adventurer's
+            whole Pose, front / three-quarters, 27.2 / 24.3 -> 27.5 / 24.3 (its legs
+            branch above its root, so no run was respaced there before).
         bind_orders: Between parts drawn, with the links between them, as the bind pose
             shows them (ours; with E_b on), a depth order the bind pose has the other way
             round is left out and one it meets asks for no more than the bind pose's gap:
