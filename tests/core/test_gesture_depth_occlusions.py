@@ -291,3 +291,41 @@ def test_a_link_drawn_longer_than_it_can_be_weighs_little():
     # 0.63 against 0.30 guarded.
     assert error(bad, DepthOptions(max_drawn_ratio=np.inf, bind_weight=0.0)) > 2.0 * clean
     assert error(bad, DepthOptions(max_drawn_ratio=np.inf)) > 1.5 * clean
+
+
+def test_a_contour_order_the_lifted_drawing_contradicts_is_not_forced():
+    """The crossing drawing (the torso's outline stops at the forearm's: the arm in front),
+    over a bind pose whose arm passes 0.3 m behind the torso, drawn exactly as that bind
+    pose shows it. The start keeps the drawn-as-bind bones, so its forearm is behind: the
+    order read from the contours contradicts the lifted drawing and only chooses sides
+    (none to choose here); it is reported unmet and the pose stays as drawn. Enforced as
+    the paper's hard constraint (``enforce_contour_orders``) the solve bends the arm to
+    the front. (Over a bind pose in the view plane the order is met at the start and
+    enforced: test_solve_keeps_the_drawn_occlusion.)"""
+    sk0, cam, emb0 = _crossing_drawing(arm_in_front=True)
+    behind = 0.3
+    sk = Skeleton(sk0.names, sk0.parents, sk0.rest_heads + [[0, 0, 0], [0, behind, 0],
+                                                            [0, behind, 0]],
+                  sk0.rest_tails + [[0, 0, 0], [0, behind, 0], [0, behind, 0]],
+                  sk0.rest_frames, sk0.inherit_rotation, sk0.connected, sk0.deform)
+    solving = solving_skeleton(sk)
+    emb = Embedding2D(solving, emb0.joints2d, emb0.joint_visible, emb0.joint_radius,
+                      emb0.bone_segments, emb0.bone_segment_sides, (), emb0.contours,
+                      emb0.contour_normals, 1.0, 0.0, epsilon=emb0.epsilon)
+    s = solving
+    opts = DepthOptions(bind_orders=False)  # the bind pose's word on it aside
+    res = solve_pose3d(sk, emb, cam, options=opts)
+    forced = solve_pose3d(sk, emb, cam, options=DepthOptions(bind_orders=False,
+                                                             enforce_contour_orders=True))
+    for r in (res, forced):
+        assert [c.label for c in r.ordering] == ["occlusion torso behind forearm.L"]
+    gap = {name: r.ordering[0].gap(cam.depth(r.joints3d))
+           for name, r in (("soft", res), ("forced", forced))}
+    # Measured: -0.300 (the forearm as drawn, behind) and +0.000 (the margin, met).
+    assert res.ordering[0].soft and not np.all(res.ordering_satisfied)
+    assert gap["soft"] == pytest.approx(-behind, abs=0.01)
+    assert not res.warnings
+    assert not forced.ordering[0].soft and np.all(forced.ordering_satisfied)
+    assert gap["forced"] >= forced.ordering[0].margin - 1e-6
+    X = forced.joints3d
+    assert float(np.max(np.abs(X[s.tail_joint[2]] - res.joints3d[s.tail_joint[2]]))) > 0.2

@@ -25,7 +25,7 @@ constraints, raised the mean 3D error.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -46,6 +46,9 @@ class OrderingConstraint:
         front: Joints of the part in front, shape ``(k,)``.
         front_w: Their weights, shape ``(k,)``.
         margin: Required depth gap, world units (>= 0).
+        soft: Read by the 3D step from the drawing's contours (:mod:`.occlusions`): it
+            chooses the start's depth sides but is not a constraint of the QPs (ours;
+            :class:`.solve3d.DepthOptions` ``enforce_contour_orders``).
     """
 
     kind: str
@@ -55,6 +58,7 @@ class OrderingConstraint:
     front: np.ndarray
     front_w: np.ndarray
     margin: float
+    soft: bool = False
 
     def gap(self, depths: np.ndarray) -> float:
         """Depth of the back part minus depth of the front part, world units."""
@@ -98,8 +102,8 @@ def occlusion_constraint(embedding: Embedding2D, occ: Occlusion, scale: float,
 
 def ordering_constraints(embedding: Embedding2D, scale: float, names: tuple[str, ...] = (),
                          tolerance: float = 0.5, interior: float = 1.0, min_parts: int = 2,
-                         overlap: float = 1.0, t_junctions: bool = False
-                         ) -> list[OrderingConstraint]:
+                         overlap: float = 1.0, t_junctions: bool = False,
+                         soft: bool = False) -> list[OrderingConstraint]:
     """All depth-order constraints the drawing implies.
 
     The embedding's own occlusions, then those detected on its contours
@@ -117,6 +121,8 @@ def ordering_constraints(embedding: Embedding2D, scale: float, names: tuple[str,
         min_parts: Fewest parent-child steps between the bones of an occlusion.
         overlap: Largest closest-approach of the two bones' axes over their radii.
         t_junctions: Keep the intra-part T-junctions.
+        soft: Mark the orders detected on the contours ``soft`` (the embedding's own
+            occlusions stay hard).
 
     Returns:
         Occlusion (Eq. 8) and T-junction constraints, without duplicates.
@@ -131,7 +137,7 @@ def ordering_constraints(embedding: Embedding2D, scale: float, names: tuple[str,
     for o in occ:
         if (o.back_bone, o.front_bone) not in seen and (o.front_bone, o.back_bone) not in seen:
             seen.add((o.back_bone, o.front_bone))
-            out.append(occlusion_constraint(embedding, o, scale, names))
+            out.append(replace(occlusion_constraint(embedding, o, scale, names), soft=soft))
     for stem, top in tees if t_junctions else ():
         j = ({int(s.head_joint[stem]), int(s.tail_joint[stem])}
              & {int(s.head_joint[top]), int(s.tail_joint[top])}).pop()
@@ -139,7 +145,7 @@ def ordering_constraints(embedding: Embedding2D, scale: float, names: tuple[str,
         label = (f"t_junction {names[stem]} turns behind {names[top]}" if names
                  else f"t_junction {stem} behind {top}")
         out.append(OrderingConstraint("t_junction", label, np.array([far]), np.ones(1),
-                                      np.array([j]), np.ones(1), 0.0))
+                                      np.array([j]), np.ones(1), 0.0, soft))
     return out
 
 
