@@ -200,6 +200,16 @@ def test_rigid_fingers_are_posed_exactly_like_the_chain():
     assert np.array_equal(fig.joint_positions(h2, t2), fig.joint_positions(heads, tails))
     *_, Q = model.forward_rotations(x, rigid=False)
     assert np.array_equal(Q, model.local_rotations(x)[0])
+    # What the rigid bones add to a weighted sum of midpoints (the centre of mass) follows
+    # from their chain ancestors' frames alone.
+    w = np.random.default_rng(3).random(sk.n_bones)
+    anchors, W, v = model.rigid_moments(w)
+    assert anchors.tolist() == [sk.index("hand.L")]  # the right fingers are on the chain
+    mid = 0.5 * (heads + tails)
+    want = np.einsum("n,pnd->pd", w[rigid], mid[:, rigid])
+    got = np.einsum("a,pad->pd", W, h2[:, anchors]) + np.einsum("paij,aj->pi",
+                                                                f2[:, anchors], v)
+    assert np.allclose(got, want, atol=1e-13)
 
 
 def test_right_jacobian_against_finite_differences():

@@ -245,6 +245,40 @@ class PoseModel:
         hc = np.eye(3) if p < 0 else state.frames[p] @ sk.rest_frames[p].T
         object.__setattr__(self, "_root_hcarry", hc)
 
+    def rigid_moments(self, weights: np.ndarray) -> tuple[np.ndarray, ...]:
+        """What the rigid bones add to a weighted sum of bone midpoints, per chain bone.
+
+        A rigid bone (below the chain, turned by no gene: a finger) keeps its place in the
+        frame of its nearest chain ancestor ``a``, so the rigid bones under ``a`` add
+        ``W_a head_a + F_a v_a`` to ``sum_n w_n (head_n + tail_n) / 2`` (the centre of
+        mass of Eqs. 7-8 with ``w`` the bone masses), ``F_a`` the posed frame of ``a``.
+
+        Args:
+            weights: Per-bone weights, shape ``(n,)``.
+
+        Returns:
+            ``(anchors (A,), W (A,), v (A, 3))``: the chain bones carrying rigid bones,
+            their rigid bones' total weight and weighted midpoint offsets in their frames.
+        """
+        sk = self.skeleton
+        on_chain = np.zeros(sk.n_bones, bool)
+        on_chain[self._chain] = True
+        heads, tails, frames = (a[0] for a in self.forward(np.zeros((1, self.n_genes))))
+        anchor = {}
+        for k in np.flatnonzero(~on_chain).tolist():
+            a = k
+            while not on_chain[a]:
+                a = int(sk.parents[a])
+            anchor.setdefault(a, []).append(k)
+        anchors = np.array(sorted(anchor), int)
+        W = np.array([weights[anchor[a]].sum() for a in anchors.tolist()])
+        # The frames' inverse, not their transpose: rest frames read from float32 data
+        # are orthonormal to about 1e-7 only.
+        v = np.array([np.linalg.solve(frames[a], weights[anchor[a]] @ (
+            0.5 * (heads[anchor[a]] + tails[anchor[a]]) - heads[a]))
+            for a in anchors.tolist()]).reshape(-1, 3)
+        return anchors, W, v
+
     def genes_of(self, name: str) -> np.ndarray:
         """Gene indices of the group called ``name`` (empty when there is none)."""
         for grp, genes in zip(self.figure.groups, self.group_genes, strict=True):

@@ -210,6 +210,7 @@ class StickObjective:
     _ppu1: float = field(init=False, repr=False)
     _comfort_ref: np.ndarray = field(init=False, repr=False)
     _comfort_scale: np.ndarray = field(init=False, repr=False)
+    _rigid_mass: tuple = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         """Cache drawn edges, the pixel scale, the support polygon and comfort constants."""
@@ -236,6 +237,13 @@ class StickObjective:
         # sqrt(w / m) / h: each group counts once, whatever its number of genes.
         object.__setattr__(self, "_comfort_scale",
                            np.sqrt(self.weights.comfort / np.repeat(m, m)) / half)
+        # The centre of mass without posing the rigid bones (fingers): the chain bones'
+        # masses and, per chain bone, what its rigid bones add.
+        w = self.masses / self.masses.sum()
+        chain = np.zeros(len(w), bool)
+        chain[self.model._chain] = True
+        object.__setattr__(self, "_rigid_mass",
+                           (np.flatnonzero(chain), w[chain], *self.model.rigid_moments(w)))
 
     # -- terms ---------------------------------------------------------------------------
 
@@ -260,12 +268,29 @@ class StickObjective:
         gq[:, present] += 2.0 * self.weights.position * off / self._px_scale
         return energy, np.einsum("pjk,pjkd->pjd", gq, Jq)
 
-    def _balance(self, heads, tails, grad):
+    def _centre_of_mass(self, heads: np.ndarray, tails: np.ndarray,
+                        frames: np.ndarray | None) -> np.ndarray:
+        """Centre of mass ``(P, 3)`` of posed bones (Eqs. 7-8).
+
+        With ``frames`` ``(P, n, 3, 3)`` the rigid bones' heads and tails are not read
+        (:meth:`.PoseModel.forward` with ``rigid`` False): their masses move with their
+        chain ancestors' frames (:meth:`.PoseModel.rigid_moments`). The same centre, to
+        rounding.
+        """
+        if frames is None:
+            m = self.masses / self.masses.sum()
+            return np.einsum("n,pnd->pd", m, 0.5 * (heads + tails))
+        chain, w, anchors, W, v = self._rigid_mass
+        com = np.einsum("n,pnd->pd", w, 0.5 * (heads[:, chain] + tails[:, chain]))
+        return (com + np.einsum("a,pad->pd", W, heads[:, anchors]) +
+                np.einsum("paij,aj->pi", frames[:, anchors], v))
+
+    def _balance(self, heads, tails, grad, frames=None):
         P = heads.shape[0]
         if len(self._poly) == 0:
             return np.zeros(P), None
         m = self.masses / self.masses.sum()
-        com = np.einsum("n,pnd->pd", m, 0.5 * (heads + tails))
+        com = self._centre_of_mass(heads, tails, frames)
         off = polygon_offset(com @ self._ground, self._poly)
         energy = np.sum(off**2, 1) / self.height**2
         if not grad:
@@ -393,8 +418,8 @@ class StickObjective:
     # -- public ----------------------------------------------------------------------------
 
     def energies(self, heads: np.ndarray, tails: np.ndarray, collision: bool = True,
-                 grad: bool = False) -> tuple[np.ndarray, dict, np.ndarray | None,
-                                              np.ndarray | None]:
+                 grad: bool = False, frames: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, dict, np.ndarray | None, np.ndarray | None]:
         """Weighted total energy of posed bones.
 
         Args:
@@ -402,6 +427,8 @@ class StickObjective:
             tails: Posed tails, shape ``(P, n, 3)``.
             collision: Include Eq. 11.
             grad: Also return the gradients with respect to heads and tails.
+            frames: Posed frames ``(P, n, 3, 3)`` when the rigid bones were not posed
+                (``collision`` False only; see :meth:`_centre_of_mass`), else None.
 
         Returns:
             ``(E (P,), {term: (P,)}, dE/dheads (P, n, 3), dE/dtails (P, n, 3))``.
@@ -410,7 +437,7 @@ class StickObjective:
         joints = fig.joint_positions(heads, tails)
         w = self.weights
         e_p, gj_p = self._projection(joints, grad)
-        e_b, g_b = self._balance(heads, tails, grad)
+        e_b, g_b = self._balance(heads, tails, grad, frames)
         e_a, gj_a = self._attachment(joints, grad)
         terms = {"projection": e_p, "balance": e_b, "attachment": e_a}
         total = w.projection * e_p + w.balance * e_b + w.attachment * e_a
@@ -651,15 +678,22 @@ class StickObjective:
         return np.concatenate(rs), jacobian
 
     def evaluate(self, genes: np.ndarray, collision: bool = True,
-                 posed: tuple[np.ndarray, np.ndarray] | None = None
+                 posed: tuple[np.ndarray, ...] | None = None
                  ) -> tuple[np.ndarray, dict]:
         """Energies of a population, ``(P, G) -> ((P,), {term: (P,)})``.
 
         ``posed``: the population's heads and tails ``(P, n, 3)`` when the caller has
-        already posed it (:meth:`.PoseModel.forward`), else None.
+        already posed it (:meth:`.PoseModel.forward`), or heads, tails and frames posed
+        without the rigid bones (``rigid`` False, ``collision`` False only), else None.
+        Without collisions the rigid bones (fingers) are not posed: only the centre of
+        mass reads them (:meth:`_centre_of_mass`).
         """
-        heads, tails = self.model.forward(genes)[:2] if posed is None else posed
-        total, terms, _, _ = self.energies(heads, tails, collision)
+        if posed is None:
+            posed = (self.model.forward(genes, rigid=False) if collision is False else
+                     self.model.forward(genes)[:2])
+        heads, tails = posed[:2]
+        frames = posed[2] if len(posed) > 2 else None
+        total, terms, _, _ = self.energies(heads, tails, collision, frames=frames)
         if self.weights.comfort > 0:
             c = np.sum(self.comfort_residuals(genes) ** 2, 1)
             terms["comfort"] = c / self.weights.comfort

@@ -73,8 +73,12 @@ def plausibility(objective: StickObjective, genes: np.ndarray,
         ``"energy"`` and ``"foreshortening"``, each ``(P,)``.
     """
     x = np.atleast_2d(genes)
-    heads, tails, _ = objective.model.forward(x)
-    energy, terms = objective.evaluate(x, collision, posed=(heads, tails))
+    # Without collisions the rigid bones (fingers) are not posed (only the centre of mass
+    # reads them: StickObjective.evaluate).
+    posed = (objective.model.forward(x, rigid=False) if collision is False else
+             objective.model.forward(x)[:2])
+    heads, tails = posed[:2]
+    energy, terms = objective.evaluate(x, collision, posed=posed)
     f = foreshortening(objective, objective.model.figure.joint_positions(heads, tails))
     score = energy + weights.foreshortening * f + weights.balance * terms["balance"]
     return score, {**terms, "energy": energy, "foreshortening": f}
