@@ -245,6 +245,11 @@ class PoseModel:
         hc = np.eye(3) if p < 0 else state.frames[p] @ sk.rest_frames[p].T
         object.__setattr__(self, "_root_hcarry", hc)
 
+    @property
+    def chain_bones(self) -> np.ndarray:
+        """The bones posed per individual (the others are rigid), ascending, ``(c,)``."""
+        return self._chain
+
     def rigid_moments(self, weights: np.ndarray) -> tuple[np.ndarray, ...]:
         """What the rigid bones add to a weighted sum of bone midpoints, per chain bone.
 

@@ -241,7 +241,7 @@ class StickObjective:
         # masses and, per chain bone, what its rigid bones add.
         w = self.masses / self.masses.sum()
         chain = np.zeros(len(w), bool)
-        chain[self.model._chain] = True
+        chain[self.model.chain_bones] = True
         object.__setattr__(self, "_rigid_mass",
                            (np.flatnonzero(chain), w[chain], *self.model.rigid_moments(w)))
 
