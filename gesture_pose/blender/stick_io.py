@@ -258,7 +258,7 @@ def solve_scene(context, op, arm_obj, sketch_obj) -> tuple[StickResult, list[str
         skeleton=data.skeleton, camera=st.camera, stick=st.stick, environment=env,
         mesh_vertices=verts, mesh_weights=weights, ik_limits=data.ik_limits,
         base_pose=base, env_pins=env_pins, limb_pins=limb_pins, seed=op.seed,
-        n_suggestions=op.suggestions, use_contact=op.use_contact)
+        n_suggestions=op.suggestions, facing=op.facing, use_contact=op.use_contact)
     result = solve_stick(inp)
     if data.warnings:  # the reader's notes (an imported rig's locks and limits dropped)
         result = replace(result, warnings=(*data.warnings, *result.warnings))

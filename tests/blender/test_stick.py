@@ -7,6 +7,7 @@ the Pin Joint operator and Pose Stick Figure reconstructs the pose.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -16,6 +17,7 @@ from gesture_pose.blender.read_armature import read_armature
 from gesture_pose.blender.read_mesh import read_skinned_meshes
 from gesture_pose.blender.stick_io import read_pins
 from gesture_pose.blender.write_pose import keyed_frames
+from gesture_pose.core.stick.genetic import GAConfig
 from sample_scenes import stick_builders as sb
 
 bpy = pytest.importorskip("bpy")
@@ -108,6 +110,29 @@ def test_swap_sides_exchanges_the_arms(registered):
     px = c.project(np.array([before["wrist.R"], after["wrist.L"]]))
     assert np.linalg.norm(px[0] - px[1]) < 25.0
     assert json.loads(bpy.context.scene["gesture_pose_stick_swaps"]) == ["arms"]
+
+
+def test_facing_option_reaches_the_solve(registered, monkeypatch):
+    # The Facing option labels the drawn sides and decides which way the search starts
+    # the body facing: the operator passes it to the solve.
+    import gesture_pose.blender.stick_io as stick_io
+
+    sc = sb.build_stick_scene("stand")
+    arm, sketch = sc["armature"], sc["sketch"]
+    seen = []
+    real = stick_io.solve_stick
+
+    def spy(inp):
+        seen.append(inp.facing)
+        return real(dataclasses.replace(inp, ga=GAConfig(population=64, max_generations=1)))
+
+    monkeypatch.setattr(stick_io, "solve_stick", spy)
+    for facing in ("back", "front"):
+        with _ops(arm):
+            assert bpy.ops.gesture_pose.pose_stick_figure(
+                armature=arm.name, sketch=sketch.name, suggestions=1, facing=facing,
+                insert_keys=False) == {"FINISHED"}
+    assert seen == ["back", "front"]
 
 
 def test_topology_mismatch_is_reported(registered):
