@@ -52,37 +52,39 @@ def _trace(arm, target="Traced Contours", **kwargs):
 # contours. Measured on these drawings (this camera, framed on the rest pose):
 #
 #   pose            median  mean  max   joints within 4%
-#   rest            0.25    0.31  0.89  100% (refined from the pose, see below)
-#   step            0.71    1.03  4.05  96%  (the left toe, 4.05)
-#   raise_left_arm  1.11    1.49  3.57  100%
-#   reach           0.85    2.21  8.33  76%  (the right arm, stretched towards the viewer,
-#                                            found shorter, and the chest group with it:
-#                                            hand 8.3, wrist 7.7, clavicle 7.1)
-#   crouch          1.82    3.35  16.2  72%  (thighs pointing at the viewer, drawn at a
+#   rest            0.33    0.33  0.91  100% (refined from the pose, see below)
+#   step            2.55    2.51  5.14  80%  (the pelvis group 24 px low, 4.0; the right
+#                                            elbow 5.1; the left toe 4.07)
+#   raise_left_arm  1.10    1.48  3.80  100%
+#   reach           1.27    1.51  3.96  100%
+#   crouch          1.88    3.22  16.2  76%  (thighs pointing at the viewer, drawn at a
 #                                            third of their length: knees 8.6-16, the right
 #                                            shin and foot 8-10)
 #
-# Before the perspective range of the length term and the consistency term's test that a
-# crossed contour runs across the bone (see docs/gesture.md): rest 1.7 / 1.5 / 3.6 / 100%,
-# step 1.0 / 1.8 / 5.1 / 88%, raise_left_arm 1.0 / 3.2 / 33 / 92% (the raised forearm and
-# hand folded back), reach 2.0 / 2.4 / 8.1 / 88%, crouch 3.2 / 3.6 / 10 / 64%. The 96
-# drawings measured for the change (docs/gesture.md) improved on the whole, clean and
-# perturbed; the rest drawing here lost its pass by 0.16%. The refinement's second start
-# from the pose (GestureParams.bind_start) brought it back: from the discrete answer the
-# chest's rigid group stopped 20 px high (2.05 / 2.02 / 4.16 / 96%, E_match 7.90), from
-# the pose it ends at E_match 4.67.
+# Before this round's three changes to the search (rigid joints without a unary term in
+# E_match, limb ends moved onto unexplained contours, no crossing test on bones without
+# room between their joint circles; docs/gesture.md): step 0.71 / 1.03 / 4.05 / 96% (the
+# left toe), reach 0.85 / 2.21 / 8.33 / 76% (the right arm stretched towards the viewer
+# found short: its hand paid the consistency term for its own wrist ball), crouch 1.82 /
+# 3.35 / 16.2 / 72%, rest and raise_left_arm within 0.1 of the above. They took the 48
+# drawings measured for them from 3.80 / 9.77 to 3.64 / 8.90 %h clean and 4.53 / 10.87
+# to 4.32 / 11.11 perturbed (mean / mean 90th percentile); the step is the drawing here
+# that lost (E_match 4.42, against 5.18 at the true joints with the fit's radii and
+# labels: the energy, not the search, prefers it).
+# The refinement's second start from the pose (GestureParams.bind_start) wins on the rest
+# drawing: from the discrete answer the chest's rigid group stopped 20 px high.
 #
-# So the check holds for rest and raise_left_arm (test_every_joint_within_4_percent; the
-# others are expected failures with the reasons above). The limits below are those
-# measurements plus a margin for platform noise only (half a percent on the median, one
-# joint on the share): the median error, and the share of joints the 4% already
-# holds for.
+# So the check holds for rest, raise_left_arm and reach (test_every_joint_within_4_percent;
+# step and crouch are expected failures with the reasons above). The limits below are
+# those measurements plus a margin for platform noise only (half a percent on the median,
+# one joint on the share): the median error, and the share of joints the 4%
+# already holds for.
 @pytest.mark.parametrize("pose_name,median_limit,within_limit", [
-    ("step", 1.2, 0.92),
+    ("step", 3.05, 0.76),
     ("rest", 0.75, 0.96),
     ("raise_left_arm", 1.6, 0.96),
-    ("reach", 1.4, 0.72),
-    ("crouch", 2.4, 0.68),
+    ("reach", 1.8, 0.96),
+    ("crouch", 2.4, 0.72),
 ])
 def test_fit_finds_the_joints_of_traced_poses(registered, pose_name, median_limit,
                                               within_limit):
@@ -93,8 +95,9 @@ def test_fit_finds_the_joints_of_traced_poses(registered, pose_name, median_limi
     assert np.mean(err <= 4.0) >= within_limit, dict(zip(names, err.round(1), strict=True))
     assert 0.5 < emb.coverage <= 1.0
     assert emb.timings["total"] < 20.0
-    # The refinement's start from the pose wins on the rest drawing only (E_match 4.67
-    # against 7.90 from the discrete solution; the moved poses keep the discrete walk).
+    # The refinement's start from the pose wins on the rest drawing only (when it came in:
+    # E_match 4.67 against 7.90 from the discrete solution; the moved poses keep the
+    # discrete walk).
     assert emb.terms["pose_start"] == int(pose_name == "rest")
 
 
@@ -112,9 +115,9 @@ def _not_yet(reason: str):
 
 @pytest.mark.parametrize("pose_name", [
     "rest",
-    pytest.param("step", marks=_not_yet("the left toe 4.05% off")),
+    pytest.param("step", marks=_not_yet("the pelvis 4.0% low, the right elbow 5.1%")),
     "raise_left_arm",
-    pytest.param("reach", marks=_not_yet("right arm towards the viewer found short, 8.3%")),
+    "reach",
     pytest.param("crouch", marks=_not_yet("thighs towards the viewer, knees 8.6-16%")),
 ])
 def test_every_joint_within_4_percent(registered, pose_name):

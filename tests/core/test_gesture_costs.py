@@ -6,6 +6,7 @@ import numpy as np
 
 from gesture_pose.core.gesture.costs import (
     CostParams,
+    crossing_room,
     crossing_stations,
     length_cost,
     pair_cost,
@@ -198,3 +199,33 @@ def test_problem_gives_the_view_length_only_with_view_lengths():
     off = make_problem(d, sol, 100.0, view, CostParams(perspective_lengths=False),
                        np.full(3, 1.2))
     assert off.nearest_length(tail) is None
+
+
+def test_a_bone_without_room_between_its_circles_is_not_tested_for_crossings():
+    """A hand (34 px, joint radii 11 and 9) a step of about 17 px long on each side has
+    no stretch of axis a step beyond both circles: its probe falls on the drawn wrist
+    ball's outline, a contour of its own head joint that every correct placement
+    crosses. ``crossing_room`` leaves such a bone out of the crossing test."""
+    head, tail = np.array([300.0, 300.0]), np.array([334.0, 300.0])
+    frame = [Stroke(segment([0.0, 0.0], [600.0, 0.0], 40)),  # a 600 x 600 drawing
+             Stroke(segment([0.0, 600.0], [600.0, 600.0], 40))]
+    ball = Stroke(arc(head, 13.0, 0.0, 2 * np.pi, 32))
+    tip = Stroke(arc(tail, 9.0, -np.pi / 2, np.pi / 2, 16))
+    outline = [Stroke(segment(head + [0, s * 10.0], tail + [0, s * 9.0], 12))
+               for s in (1.0, -1.0)]
+    d = preprocess([ball, tip, *outline, *frame])
+    assert 15.0 < d.epsilon < 20.0
+    g_head = d.group[d.tree.query(head + [13.0, 0.0])[1]]  # the ball, where the axis crosses it
+    g_tail = d.group[d.tree.query(tail + [9.0, 0.0])[1]]
+
+    def cost(room: bool) -> float:
+        params = CostParams(w_direction=0.0, crossing_room=room)
+        return float(pair_cost(d, head[None], np.array([11.0]), np.array([g_head]),
+                               np.array([1]), tail[None], np.array([9.0]),
+                               np.array([g_tail]), np.array([1]), 34.0, params)[0, 0])
+
+    assert cost(False) >= 0.9  # the ball's outline, 4 px from the middle probe, is "crossed"
+    assert cost(True) < 0.5
+    room = crossing_room(np.array([[34.0], [70.0]]).T, np.array([11.0]), np.array([9.0]),
+                         d.epsilon)
+    np.testing.assert_array_equal(room, [[False, True]])

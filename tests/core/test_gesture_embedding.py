@@ -10,9 +10,11 @@ import pytest
 
 from gesture_pose.core.exceptions import InputError
 from gesture_pose.core.gesture import embedding
-from gesture_pose.core.gesture.candidates import JointCandidates
+from gesture_pose.core.gesture.candidates import JointCandidates, contour_candidates
+from gesture_pose.core.gesture.consistency import assign_contours
+from gesture_pose.core.gesture.costs import unary_cost
 from gesture_pose.core.gesture.embedding import GestureParams, fit_drawing
-from gesture_pose.core.gesture.mrf import interior_joints, make_problem
+from gesture_pose.core.gesture.mrf import interior_joints, joint_energy, make_problem
 from gesture_pose.core.gesture.preprocess import preprocess
 from gesture_pose.core.gesture.radii import discrete_radii, fit_sphere, joint_radii
 from gesture_pose.core.gesture.refine import rigid_groups
@@ -145,6 +147,10 @@ def test_solving_skeleton_joints_and_exclusion():
     sol = solving_skeleton(chain)
     assert sol.bones.tolist() == [0, 1] and sol.excluded.tolist() == [2]
     assert sol.extends[sol.tail_joint[1]] and not sol.terminal[sol.tail_joint[1]]
+    # It still ends its limb in the drawing (a hand that fingers continue): Section 5.4's
+    # enumeration places it.
+    assert sol.limb_ends[sol.tail_joint[1]] and not sol.limb_ends[sol.tail_joint[0]]
+    assert sol.limb_ends[sol.head_joint[0]]  # the root, with a single child
     # The "Gesture" collection overrides the choice.
     sol = solving_skeleton(chain, override=np.array([True, False, False]))
     assert sol.bones.tolist() == [0]
@@ -224,3 +230,75 @@ def test_near_scales_follow_the_distance_from_the_root():
     moved = world + np.array([[0, 0, 0], [0, 0, 0], [0, -1.0, 0]])
     got = near_scales(cam, two, moved, ppu)
     np.testing.assert_allclose(got[2], 6.0 / 5.0, rtol=1e-6)
+
+
+def test_rigid_joints_have_no_unary_term():
+    """E_match scores rigid joints (hip and shoulder heads) as the search does: placed by
+    rigidity, without a unary term, even where their circle touches a line."""
+    sol = solving_skeleton(tree_skeleton())
+    cam = front_camera(ortho=True)
+    ref = cam.project(sol.rest_joints)
+    head = int(sol.head_joint[2])  # arm.L's head, a rigid offset from the chest
+    r = 12.0
+    line = Stroke(np.array([ref[head] + [-300.0, -r], ref[head] + [300.0, -r]]))
+    problem = make_problem(preprocess([line]), sol, 100.0, ref)
+    assert problem.rigid[head] and not problem.scored[head] and problem.scored.sum() > 0
+    n = sol.n_joints
+
+    def unary(j: int) -> float:
+        return float(unary_cost(problem.drawing, ref[j:j + 1], np.array([r]),
+                                bool(problem.terminal[j]), problem.params)[0][0])
+
+    assert 0.0 < unary(head) < 1.0  # tangent to the line: counted, it would pay this
+    _, aligned = unary_cost(problem.drawing, ref, np.full(n, r), False, problem.params)
+    conf = JointCandidates(ref, np.full(n, r), np.zeros(n, int), -np.ones(n, int),
+                           -np.ones(n, int), np.zeros(n), aligned)
+    terms = joint_energy(problem, conf)[1]
+    scored = np.flatnonzero(problem.scored)
+    assert terms["unary"] == pytest.approx(sum(unary(int(j)) for j in scored))
+
+
+def test_coverage_moves_offer_limb_ends_the_contours_left_unexplained():
+    """With the wrist placed halfway up the forearm, the hand's end cap is unexplained:
+    the wrist's sites are there, none where it already is (Section 5.4, our order)."""
+    cam, skel, pixels, _, truth = _arm_case()
+    d = preprocess([Stroke(pixels)])
+    sol = solving_skeleton(skel)
+    ppu = cam.pixels_per_unit(6.0)
+    problem = make_problem(d, sol, ppu, cam.project(sol.rest_joints))
+    params = GestureParams()
+    r = R * ppu
+    contour = [contour_candidates(d, np.array([r]), bool(problem.terminal[j]), problem.params,
+                                  params.pool_candidates) for j in range(sol.n_joints)]
+    wrist = sol.joint_bones.index("b1 tail")
+    placed = truth.copy()
+    placed[wrist] = 0.5 * (truth[1] + truth[2])
+    n = sol.n_joints
+    conf = JointCandidates(placed, np.full(n, r), np.zeros(n, int), -np.ones(n, int),
+                           -np.ones(n, int), np.zeros(n), -np.ones((n, 48), int))
+    assign = assign_contours(problem, conf)
+    assert assign.coverage < 0.85
+    ends = np.flatnonzero(sol.limb_ends)
+    sites = embedding._coverage_sites(problem, assign, ends, contour, conf, params)
+    eps = d.epsilon
+    moved = [s for j, s in sites if j == wrist]
+    assert 1 <= len(moved) <= params.coverage_sites
+    assert min(np.linalg.norm(s.positions[0] - truth[2]) for s in moved) < 1.5 * eps
+    for j, s in sites:
+        assert np.linalg.norm(s.positions[0] - placed[j]) > 1.5 * eps
+        assert np.count_nonzero(~assign.covered[s.aligned[0][s.aligned[0] >= 0]]) >= 2
+
+
+def test_an_enumerated_solution_is_accepted_by_the_constraints_or_its_gains():
+    params = GestureParams()  # min coverage 0.85, penalty 10, gain 0.02, tolerance 0.5
+
+    def got(overlaps: int, coverage: float):
+        return SimpleNamespace(overlaps=[(0, 1)] * overlaps, coverage=coverage)
+
+    old = (got(1, 0.70), 5.0)
+    assert embedding._accepts((got(0, 0.86), 9.0), old, params)      # meets both
+    assert embedding._accepts((got(0, 0.70), 9.0), old, params)      # 9 < 5 + 10
+    assert not embedding._accepts((got(0, 0.60), 9.0), old, params)  # lost coverage
+    assert embedding._accepts((got(1, 0.75), 5.4), old, params)      # covers more
+    assert not embedding._accepts((got(1, 0.75), 5.6), old, params)  # for too much
+    assert not embedding._accepts((got(1, 0.71), 5.0), old, params)  # too little gain

@@ -236,6 +236,14 @@ class MatchProblem:
         out &= self.solving.joint_parent >= 0
         return out if self.interior is None else out | self.interior
 
+    @property
+    def scored(self) -> np.ndarray:
+        """Joints whose unary term counts in ``E_match``, ``(J,)`` bool: all but the rigid.
+
+        See :func:`joint_energy`.
+        """
+        return ~self.rigid
+
     def bone_blocked(self, j: int) -> np.ndarray | None:
         """Blocked samples of the bone linking joint ``j`` to its parent (None if free)."""
         b = self.solving.joint_link_bone[j]
@@ -456,6 +464,13 @@ def joint_energy(problem: MatchProblem, conf: JointCandidates,
                  joints: np.ndarray | None = None) -> tuple[float, dict]:
     """``E_match`` of the factors touching ``joints`` (all factors when None).
 
+    Rigid joints (:attr:`MatchProblem.rigid`) have no unary term: they are placed by
+    their parent and the offset, not by the contours, as in the search, whose rigid
+    candidates cost nothing (``embedding._with_rigid``). The refinement scores them the
+    same way; when it counted their circles, it moved a torso's rigid group to make
+    joints inside the body (hip and shoulder heads, a clavicle's tail) touch some line,
+    which the search had not asked for.
+
     Args:
         problem: The matching problem.
         conf: One placement per joint (see :func:`configuration`).
@@ -469,7 +484,7 @@ def joint_energy(problem: MatchProblem, conf: JointCandidates,
     n = s.n_joints
     sel = np.ones(n, bool) if joints is None else np.isin(np.arange(n), joints)
     terms = {"unary": 0.0, "pairwise": 0.0, "triplet": 0.0}
-    for j in np.flatnonzero(sel):
+    for j in np.flatnonzero(sel & problem.scored):
         _, aligned = unary_cost(problem.drawing, conf.positions[j:j + 1], conf.radii[j:j + 1],
                                 bool(problem.terminal[j]), problem.params)
         cost = unary_from_aligned(aligned, bool(problem.terminal[j]), problem.params,

@@ -79,8 +79,10 @@ def _factor_energy(problem: MatchProblem, conf: JointCandidates, j: int,
     r = np.full(t, conf.radii[j])
     g = np.full(t, conf.group[j])
     sd = np.full(t, conf.side[j])
-    total = unary_from_aligned(unary_cost(d, trial, r, bool(problem.terminal[j]), prm)[1],
-                               bool(problem.terminal[j]), prm, problem.bone_blocked(j))
+    total = np.zeros(t)
+    if problem.scored[j]:
+        total = unary_from_aligned(unary_cost(d, trial, r, bool(problem.terminal[j]), prm)[1],
+                                   bool(problem.terminal[j]), prm, problem.bone_blocked(j))
 
     c1 = conf.take(np.arange(len(conf)))
     P, R, G, S = c1.positions, c1.radii, c1.group, c1.side
@@ -161,11 +163,13 @@ def _chain_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
     def at(k: int) -> np.ndarray:
         return moved[k] if k in moved else pos[k][None]
 
+    scored = problem.scored
     for k in chain:
-        r = np.full(t, conf.radii[k])
-        aligned = unary_cost(d, moved[int(k)], r, bool(problem.terminal[k]), prm)[1]
-        total += unary_from_aligned(aligned, bool(problem.terminal[k]), prm,
-                                    problem.bone_blocked(k))
+        if scored[k]:
+            r = np.full(t, conf.radii[k])
+            aligned = unary_cost(d, moved[int(k)], r, bool(problem.terminal[k]), prm)[1]
+            total += unary_from_aligned(aligned, bool(problem.terminal[k]), prm,
+                                        problem.bone_blocked(k))
         total += _per_trial(_conf_link(problem, conf, int(k), at(par[k]), moved[int(k)]), t)
     top = int(chain[0])
     for k in [top, *np.flatnonzero(par == top)]:
@@ -312,8 +316,8 @@ def _set_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
     """``E_match`` of the factors touching joints ``idx`` for each placement of them, ``(T,)``.
 
     The factors of :func:`~.mrf.joint_energy` with ``joints=idx`` (the unaries of
-    ``idx``, every link and triplet with a joint in ``idx``), evaluated for all trials at
-    once; the other joints stay at ``pos``.
+    ``idx`` but its rigid joints', every link and triplet with a joint in ``idx``),
+    evaluated for all trials at once; the other joints stay at ``pos``.
 
     Args:
         problem: The matching problem.
@@ -334,7 +338,10 @@ def _set_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
         return moved[:, slot[k]] if k in slot else pos[k][None]
 
     total = np.zeros(t)
+    scored = problem.scored
     for k in slot:
+        if not scored[k]:
+            continue  # placed by rigidity: no unary (see mrf.joint_energy)
         aligned = unary_cost(d, at(k), np.full(t, conf.radii[k]), bool(problem.terminal[k]),
                              prm)[1]
         total += unary_from_aligned(aligned, bool(problem.terminal[k]), prm,

@@ -63,6 +63,19 @@ class SolvingSkeleton:
         return np.flatnonzero(self.joint_parent == j)
 
     @property
+    def limb_ends(self) -> np.ndarray:
+        """Joints of degree one in the joint tree, ``(J,)`` bool.
+
+        The ends of the limbs, head and tail (and a root with a single child), whether or
+        not an excluded bone continues them: a hand with fingers still ends its arm in the
+        drawing. Section 5.4's enumeration places these; :attr:`terminal` (the joints with
+        an end cap of their own) decides the unary cost.
+        """
+        degree = (self.joint_parent >= 0).astype(int)
+        np.add.at(degree, self.joint_parent[self.joint_parent >= 0], 1)
+        return degree <= 1
+
+    @property
     def terminal(self) -> np.ndarray:
         """Joints where the drawn shape ends, ``(J,)`` bool.
 
