@@ -13,9 +13,10 @@ Terminal joints (the limb ends) decide most of both, so their assignments are en
 in increasing unary cost, violators of the non-overlap constraint last, stopping at the
 first solution meeting both (:func:`terminal_order`, :func:`first_consistent`; by default
 the embedding moves them onto unexplained contours instead, see
-``embedding._coverage_moves``). Left/right limbs are then permuted (each symmetric limb pair swapped or not);
-among permutations of (nearly) equal energy the least twisted, most front-facing one wins:
-the one whose left/right order agrees with the character's current pose seen in the view.
+``embedding._coverage_moves``). Left/right limbs are then permuted (each symmetric limb
+pair swapped or not); among permutations of (nearly) equal energy the least twisted, most
+front-facing one wins: the one whose left/right order agrees with the character's current
+pose seen in the view.
 """
 
 from __future__ import annotations
