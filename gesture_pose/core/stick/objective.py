@@ -565,6 +565,10 @@ class StickObjective:
         their Jacobian. Both come from the same operations as in
         :meth:`residuals_and_jacobian` (bit-identical).
 
+        Args:
+            x: Gene vector, shape ``(G,)``.
+            collision: Include Eq. 11's penetration rows.
+
         Returns:
             ``(r (R,), jacobian)``: ``jacobian()`` returns ``dr/dx (R, G)``.
         """

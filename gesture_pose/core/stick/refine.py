@@ -73,7 +73,11 @@ class PackedRows:
     one row ``sqrt(sum r_i^2)`` over the penetrations beyond ``k`` (the largest ``k`` are
     kept). The inactive penetrations are zero with zero Jacobian rows: leaving them out
     keeps ``|r|^2``, ``J^T J`` and ``J^T r`` (the Gauss-Newton model) while the solve's
-    SVD works on about 200 rows instead of about 1,100 on the Adventurer.
+    SVD works on about 200 rows instead of about 1,100 on the Adventurer. Beyond ``k``
+    overlapping rows the folded ones keep ``|r|^2`` and ``J^T r``, their share of
+    ``J^T J`` becoming the rank-one term of their norm's gradient (not reached on the
+    benches: over the 52 CMU and sample solves at most 71 penetration rows were nonzero,
+    the median 1).
 
     Attributes:
         smooth: Smooth rows (:meth:`.StickObjective.smooth_residual_count`).
