@@ -324,7 +324,9 @@ def test_a_contour_order_the_lifted_drawing_contradicts_is_not_forced():
     # Measured: -0.300 (the forearm as drawn, behind) and +0.000 (the margin, met).
     assert res.ordering[0].soft and not np.all(res.ordering_satisfied)
     assert gap["soft"] == pytest.approx(-behind, abs=0.01)
-    assert not res.warnings
+    assert res.warnings == ("1 depth order(s) read from the contours contradict the lifted "
+                            "drawing and were not enforced: occlusion torso behind "
+                            "forearm.L.",)
     assert not forced.ordering[0].soft and np.all(forced.ordering_satisfied)
     assert gap["forced"] >= forced.ordering[0].margin - 1e-6
     X = forced.joints3d

@@ -46,9 +46,13 @@ class OrderingConstraint:
         front: Joints of the part in front, shape ``(k,)``.
         front_w: Their weights, shape ``(k,)``.
         margin: Required depth gap, world units (>= 0).
-        soft: Read by the 3D step from the drawing's contours (:mod:`.occlusions`): it
-            chooses the start's depth sides but is not a constraint of the QPs (ours;
-            :class:`.solve3d.DepthOptions` ``enforce_contour_orders``).
+        soft: Not enforced: not a constraint of the QPs, only reported (ours;
+            :class:`.solve3d.DepthOptions` ``enforce_contour_orders``). Unless that
+            option is set, every order the 3D step reads from the drawing's contours
+            (:mod:`.occlusions`) starts soft and chooses the start's depth sides; the
+            solve makes those the start meets hard (``soft=False``), so in
+            ``Pose3DResult.ordering`` the flag marks the contour orders the start
+            contradicted.
     """
 
     kind: str

@@ -13,11 +13,12 @@
   joints, ``|| ((I - H) X)_j ||^2`` with ``H`` the least-squares hat matrix of the fit.
 
 - **The spine's straight runs (ours).** Where consecutive links of the body's axis (from
-  the root, the unsided chain through the chest: pelvis to head) are drawn within 10
-  degrees of each other and one of them is drawn longer than it is, the joints between
-  them are placed along the drawn run in the proportions of the bind pose's image
-  (:func:`spine_runs`): inside the drawn torso the contours say where the run goes, not
-  where along it those joints are.
+  the root, the unsided chain through the chest: pelvis to head; to the first branch
+  point on a rig without sides in its names) are drawn within 10 degrees of each other
+  and one of them is drawn longer than it is, the joints between them are placed along
+  the drawn run in the proportions of the bind pose's image, each with the joints the 2D
+  fit moves rigidly with it (:func:`spine_runs`): inside the drawn torso the contours
+  say where the run goes, not where along it those joints are.
 
 Near-symmetric limbs are handled after the solve (:mod:`.symmetry`).
 """
@@ -27,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...names import side_of
+from ..mrf import interior_joints
 from ..solving import mirror_name
 from ..types import Embedding2D, SolvingSkeleton
 from .energies import LinearTerm, ViewFrame
@@ -301,11 +303,13 @@ def spline_term(embedding: Embedding2D, rest_joints: np.ndarray, frame: ViewFram
 
 
 def spine_chain(solving: SolvingSkeleton, through_branches: bool = False) -> np.ndarray:
-    """The spine's joints: from the root, along unsided links, to the first branch point.
+    """The spine's joints: from the root along unsided links, to a branch point or beyond.
 
     At each joint the chain follows the child joint of an unsided bone (no ``.L``/``.R``
-    side) with the largest subtree (the body, not a tail hanging from the hips), and stops
-    at a joint with more than one child (the chest, where neck and arms branch).
+    side) with the largest subtree (the body, not a tail hanging from the hips). By
+    default it stops at the first joint with more than one child (the chest, where neck
+    and arms branch); with ``through_branches`` on a rig with sides it goes on to the end
+    of the unsided chain (the head).
 
     Args:
         solving: The solving skeleton.
@@ -361,23 +365,58 @@ def axial_joints(solving: SolvingSkeleton) -> np.ndarray:
     return axial
 
 
+def rigid_followers(solving: SolvingSkeleton, joint: int,
+                    radius: np.ndarray | None = None) -> np.ndarray:
+    """The joints the 2D fit moves with ``joint``: its rigid neighbourhood below it.
+
+    These are the descendants reached through rigid-offset links (``joint_link_bone <
+    0``: the shoulder and hip heads hanging from a chest or pelvis) and, below those, the
+    tails of interior bones (a clavicle inside the torso's outline), collected down the
+    tree as the 2D fit's rigid groups are (:func:`~..refine.rigid_groups`). A tail is
+    interior by the 2D fit's test (:func:`~..mrf.interior_joints`: its circle overlaps
+    the circle of the joint its rigid offset starts from), read here with ``radius``;
+    the fit reads the mesh's largest radii, which the depth step does not have.
+
+    Args:
+        solving: The solving skeleton.
+        joint: The joint moved.
+        radius: Radius of each joint, world units, ``(J,)``, or None (no interior tails).
+
+    Returns:
+        Joint indices, ``joint`` excluded, shape ``(k,)``.
+    """
+    par, link = np.asarray(solving.joint_parent), np.asarray(solving.joint_link_bone)
+    rigid = (link < 0) & (par >= 0)
+    if radius is not None:
+        rigid |= interior_joints(solving, np.asarray(radius, float))
+    group = [int(joint)]
+    k = 0
+    while k < len(group):
+        group += [int(c) for c in np.flatnonzero((par == group[k]) & rigid)]
+        k += 1
+    return np.asarray(group[1:], int)
+
+
 def spine_runs(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.ndarray,
                frame: ViewFrame, max_angle: float = np.radians(10.0),
-               max_ratio: float = 1.05) -> np.ndarray:
+               max_ratio: float = 1.05, radius: np.ndarray | None = None) -> np.ndarray:
     """Drawn joints with the spine's straight runs spaced as in the bind pose's image.
 
     Consecutive links of the body's axis (:func:`spine_chain` through its branch points:
-    pelvis to head) drawn within ``max_angle`` of each other form a run. When one of its
-    links is drawn longer than it can be (more than ``max_ratio`` of its 3D length), the
-    2D fit has slid a joint along the run: the inner joints are moved along the drawn
-    polyline so that the links divide its length as their bind-pose images do. The run's
-    ends, its drawn path and every other joint stay; a run drawn within its lengths keeps
-    its joints (one link may be foreshortened). (On the benchmark's traced drawings the 2D
-    fit drew a pelvis link at 40% of its length and the chest above it at 162%, which the
-    solve read as a 47 degree pelvis tilt; the run as a whole was drawn at its full
-    length. The same slide at the chest, whose tail the 2D fit draws up the neck (chests
-    at 112-193% of their length), left necks at 34-86% and heads at 14-65%, turned up to
-    90 degrees out of the view plane; hence the run through the neck to the head.)
+    pelvis to head on a rig with sides) drawn within ``max_angle`` of each other form a
+    run. When one of its links is drawn longer than it can be (more than ``max_ratio`` of
+    its 3D length), the 2D fit has slid a joint along the run: the inner joints are moved
+    along the drawn polyline so that the links divide its length as their bind-pose
+    images do. The 2D fit slides a joint with its rigid neighbourhood (a chest with the
+    shoulder heads and the clavicles' tails, :func:`rigid_followers`), so each moved
+    joint's followers off the axis are translated with it. The run's ends, its drawn path
+    and every other joint stay; a run drawn within its lengths keeps its joints (one link
+    may be foreshortened). (On the benchmark's traced drawings the 2D fit drew a pelvis
+    link at 40% of its length and the chest above it at 162%, which the solve read as a
+    47 degree pelvis tilt; the run as a whole was drawn at its full length. The same
+    slide at the chest, whose tail the 2D fit draws up the neck (chests at 112-193% of
+    their length), left necks at 34-86% and heads at 14-65%, turned up to 90 degrees out
+    of the view plane; hence the run through the neck to the head.)
 
     Args:
         solving: The solving skeleton.
@@ -386,6 +425,8 @@ def spine_runs(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.n
         frame: The view.
         max_angle: Largest angle between consecutive drawn links of a run, radians.
         max_ratio: Drawn over 3D length of a link above which its run is respaced.
+        radius: Drawn radius of each joint, pixels, ``(J,)``, for the interior tails
+            among the followers (:func:`rigid_followers`), or None (rigid offsets only).
 
     Returns:
         The drawn joints, respaced, shape ``(J, 2)``.
@@ -394,6 +435,9 @@ def spine_runs(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.n
     chain = spine_chain(solving, through_branches=True)
     if len(chain) < 3:
         return out
+    on_axis = np.zeros(len(out), bool)
+    on_axis[chain] = True
+    world_radius = None if radius is None else np.asarray(radius, float) / frame.scale
     drawn = np.diff(out[chain], axis=0)
     straight = _angle(drawn[1:], drawn[:-1]) <= max_angle
     bind = np.linalg.norm(np.diff(rest_joints[chain] @ np.stack([frame.right, frame.up], 1),
@@ -411,7 +455,12 @@ def spine_runs(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.n
             arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))]
             target = np.r_[0.0, np.cumsum(bind[start:i + 1])] / bind[start:i + 1].sum() \
                 * arc[-1]
-            out[joints[1:-1]] = np.stack([np.interp(target, arc, pts[:, 0]),
-                                          np.interp(target, arc, pts[:, 1])], 1)[1:-1]
+            moved = np.stack([np.interp(target, arc, pts[:, 0]),
+                              np.interp(target, arc, pts[:, 1])], 1)[1:-1]
+            for j, p in zip(joints[1:-1], moved, strict=True):
+                follow = rigid_followers(solving, int(j), world_radius)
+                follow = follow[~on_axis[follow]]
+                out[follow] += p - out[j]
+                out[j] = p
         start = i + 1
     return out

@@ -34,6 +34,7 @@ Bone lengths are exact throughout (joint positions always come from forward kine
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -136,14 +137,18 @@ class DepthOptions:
             starts on that side (ours; :func:`.start.carried_sides`), radians; 0 leaves
             it to the default side.
         spine_runs: Largest angle between consecutive drawn links of the body's axis
-            (pelvis to head) whose inner joints are respaced along the drawn run as in
-            the bind pose's image when a link of the run is drawn longer than it is,
-            radians (ours, :func:`.regularity.spine_runs`); 0 disables it. Through the
-            chest to the head since this round (up to the chest before): the 25 traced
-            drawings with cached 2D fits 7.83 -> 7.74 % of the height (far poses 13.01
-            -> 12.81), exact embeddings 3.83 -> 3.83, CMU 6.39 -> 6.38; the Adventurer's
-            whole Pose, front / three-quarters, 27.2 / 24.3 -> 27.5 / 24.3 (its legs
-            branch above its root, so no run was respaced there before).
+            whose inner joints are respaced along the drawn run as in the bind pose's
+            image when a link of the run is drawn longer than it is, radians (ours,
+            :func:`.regularity.spine_runs`); 0 disables it. A moved joint carries the
+            joints the 2D fit moves with it (a chest's shoulder heads and clavicle
+            tails). The axis runs from the root through the chest to the head on a rig
+            with left/right sides in its bone names, and from the root to the first
+            branch point on one without (up to the chest before 5b0e594 on every rig):
+            the 25 traced drawings with cached 2D fits 7.83 -> 7.74 % of the height
+            (far poses 13.01 -> 12.81), exact embeddings 3.83 -> 3.83, CMU 6.39 ->
+            6.38; the Adventurer's whole Pose, front / three-quarters, 27.2 / 24.3 ->
+            27.5 / 24.3 (its legs branch above its root, so no run was respaced there
+            before).
         bind_orders: Between parts drawn, with the links between them, as the bind pose
             shows them (ours; with E_b on), a depth order the bind pose has the other way
             round is left out and one it meets asks for no more than the bind pose's gap:
@@ -256,8 +261,11 @@ class Pose3DResult:
         iterations: SQP iterations.
         converged: Whether the step or the energy decrease fell under its tolerance.
         active: Labels of the inequality constraints active at the solution.
-        ordering: The depth-order constraints used.
-        ordering_satisfied: Whether each ordering constraint holds at the solution.
+        ordering: The depth orders read from the embedding and the contours (after the
+            bind pose's filter and without those dropped), enforced or not: those with
+            ``soft`` set were not constraints of the QPs (a contour-read order the start
+            contradicts; listed in ``warnings`` when unmet).
+        ordering_satisfied: Whether each depth order holds at the solution.
         equalities: Labels of the hard equality constraints (same direction).
         contacts: Joint pairs kept in contact, shape ``(k, 2)``.
         foreshortening: Drawn over 3D length per link, shape ``(L,)``.
@@ -333,7 +341,8 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
     frame = energies.view_frame(camera, X_rest.mean(axis=0), opts.perspective)
     if opts.spine_runs > 0:
         embedding = replace(embedding, joints2d=regularity.spine_runs(
-            s, embedding.joints2d, X_rest, frame, opts.spine_runs))
+            s, embedding.joints2d, X_rest, frame, opts.spine_runs,
+            radius=embedding.joint_radius))
     a, b = energies.joint_links(np.asarray(s.joint_parent))
     lengths = np.linalg.norm(X_rest[b] - X_rest[a], axis=1)
     n_j = jmap.n_joints
@@ -506,6 +515,39 @@ def _promote_met_orders(skeleton: Skeleton, setup: _Setup, start_pose: Pose,
     extra = LinearConstraint(rows.matrix, rows.lower + slack, rows.upper, rows.labels)
     return replace(setup, order=chosen, constraints=[*setup.constraints, extra]), \
         soft & ~promote
+
+
+def _keeps_enforced_orders(skeleton: Skeleton, jmap: twist.JointMap,
+                           frame: energies.ViewFrame,
+                           order: list[ordering.OrderingConstraint], solved: Pose,
+                           tol: float) -> Callable[[Pose], bool]:
+    """The symmetrization's test: a pose breaks no enforced order the solve meets.
+
+    Only the enforced orders (not ``soft``) count: an unenforced one is reported, not
+    forced, and one the solve happens to meet may not veto the symmetry either.
+
+    Args:
+        skeleton: The full skeleton.
+        jmap: The joint map of the solving skeleton.
+        frame: The view.
+        order: The depth orders (``Pose3DResult.ordering``).
+        solved: The solved pose.
+        tol: Violation below which an order counts as met, world units.
+
+    Returns:
+        A function of a pose, True when the pose violates no enforced order that
+        ``solved`` meets.
+    """
+    hard = [c for c in order if not c.soft]
+    X, _ = twist.joint_positions(skeleton, jmap, solved)
+    broken = ordering.violations(hard, frame.depth(X)) > tol
+
+    def keeps_order(p: Pose) -> bool:
+        Y, _ = twist.joint_positions(skeleton, jmap, p)
+        now = ordering.violations(hard, frame.depth(Y)) > tol
+        return not np.any(now & ~broken)
+
+    return keeps_order
 
 
 def _violation(constraints: list[LinearConstraint], X: np.ndarray) -> float:
@@ -707,15 +749,8 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
         t3 = time.perf_counter()
         pairs = symmetry.mirror_pairs(skeleton.names, jm.bones)
         if len(pairs):
-            X, _ = twist.joint_positions(skeleton, jm, current)
-            tol = 1e-4 * mean_len
-            broken = ordering.violations(setup.order, setup.frame.depth(X)) > tol
-
-            def keeps_order(p: Pose) -> bool:
-                Y, _ = twist.joint_positions(skeleton, jm, p)
-                now = ordering.violations(setup.order, setup.frame.depth(Y)) > tol
-                return not np.any(now & ~broken)
-
+            keeps_order = _keeps_enforced_orders(skeleton, jm, setup.frame, setup.order,
+                                                 current, 1e-4 * mean_len)
             current, symmetric = symmetry.symmetrize(skeleton, current, pairs,
                                                      opts.symmetry_angle, keeps_order)
         timings["symmetry"] = time.perf_counter() - t3
@@ -724,6 +759,11 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
     ok = ordering.violations(setup.order, depths) <= 1e-4 * mean_len
     if not np.all(ok | soft):
         warnings.append(f"{int(np.sum(~ok & ~soft))} depth-order constraint(s) are not met.")
+    if np.any(~ok & soft):
+        labels = sorted({c.label for c, k in zip(setup.order, ~ok & soft, strict=True) if k})
+        warnings.append(f"{int(np.sum(~ok & soft))} depth order(s) read from the contours "
+                        f"contradict the lifted drawing and were not enforced: "
+                        f"{', '.join(labels)}.")
     equalities = tuple(lab for c in setup.all_constraints(X) for lab, lo, hi in
                        zip(c.labels, c.lower, c.upper, strict=True) if lo == hi)
     energy = {t.name: t.value(X) for t in setup.terms}
