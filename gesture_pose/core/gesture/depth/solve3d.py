@@ -186,7 +186,8 @@ class DepthOptions:
             paper's Eq. 8). Off (ours): they choose the start's depth sides (its greedy
             flips), and only those the start then meets, within
             ``contour_order_slack``, become constraints of the QPs
-            (:func:`_promote_met_orders`); the others are reported, not forced. The
+            (:func:`_promote_met_orders`); the others are reported, not forced (``soft``
+            in ``Pose3DResult.ordering``, named in a warning when unmet). The
             embedding's own occlusions stay hard. On traced drawings about a third of
             the orders read are wrong (the 2D fit misplaces the parts they are
             attributed to), and forcing one the lifted drawing contradicts bends limbs
