@@ -218,14 +218,17 @@ def test_a_bone_without_room_between_its_circles_is_not_tested_for_crossings():
     g_head = d.group[d.tree.query(head + [13.0, 0.0])[1]]  # the ball, where the axis crosses it
     g_tail = d.group[d.tree.query(tail + [9.0, 0.0])[1]]
 
-    def cost(room: bool) -> float:
-        params = CostParams(w_direction=0.0, crossing_room=room)
+    def cost(room: bool, expected: float = 34.0) -> float:
+        params = CostParams(w_direction=0.0, crossing_room=room, sigma_length=1.0)
         return float(pair_cost(d, head[None], np.array([11.0]), np.array([g_head]),
                                np.array([1]), tail[None], np.array([9.0]),
-                               np.array([g_tail]), np.array([1]), 34.0, params)[0, 0])
+                               np.array([g_tail]), np.array([1]), expected, params)[0, 0])
 
     assert cost(False) >= 0.9  # the ball's outline, 4 px from the middle probe, is "crossed"
     assert cost(True) < 0.5
+    # A bone expected longer (70 px: room for the test) cannot escape it by being drawn
+    # short (the length term is made lenient here to isolate Cc).
+    assert cost(True, expected=70.0) >= 0.9
     room = crossing_room(np.array([[34.0], [70.0]]).T, np.array([11.0]), np.array([9.0]),
                          d.epsilon)
     np.testing.assert_array_equal(room, [[False, True]])

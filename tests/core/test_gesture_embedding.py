@@ -287,6 +287,20 @@ def test_coverage_moves_offer_limb_ends_the_contours_left_unexplained():
     for j, s in sites:
         assert np.linalg.norm(s.positions[0] - placed[j]) > 1.5 * eps
         assert np.count_nonzero(~assign.covered[s.aligned[0][s.aligned[0] >= 0]]) >= 2
+        # Within reach of its neighbour as placed: the parent, or a root's single child.
+        k = int(sol.joint_parent[j]) if sol.joint_parent[j] >= 0 else int(
+            sol.joint_children(j)[0])
+        link = j if sol.joint_parent[j] >= 0 else k
+        reach = 1.2 * problem.link_length[link] + 2 * eps
+        assert np.linalg.norm(s.positions[0] - placed[k]) <= reach
+    # The moves place the wrist on the cap (the DP re-solved with it there) and explain
+    # the drawing: the constraints are met.
+    out, solves = embedding._coverage_moves(problem, problem, ends, contour, contour, conf,
+                                            assign, params, {})
+    assert solves >= 1
+    assert np.linalg.norm(out.positions[wrist] - truth[2]) < 1.5 * eps
+    got = assign_contours(problem, out)
+    assert got.coverage >= params.min_coverage and not got.overlaps
 
 
 def test_an_enumerated_solution_is_accepted_by_the_constraints_or_its_gains():

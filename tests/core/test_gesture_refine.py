@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from gesture_pose.core.gesture.candidates import JointCandidates
 from gesture_pose.core.gesture.mrf import interior_joints, joint_energy, make_problem
@@ -142,3 +143,39 @@ def test_refinement_of_a_displaced_limb_end_regains_the_energy():
         assert np.all(np.linalg.norm(out.positions - conf.positions, axis=1) < eps)
         again, _ = refine(problem, moved, problem.reference, params)
         np.testing.assert_array_equal(out.positions, again.positions)
+
+
+def test_the_search_and_the_refinement_score_the_same_energy():
+    """The DP's tables (rigid joints placed by their parent, no unary) and E_match as the
+    refinement computes it agree on any labelling, and the rigid joints' circles do touch
+    lines (counting them would change the energy)."""
+    from gesture_pose.core.gesture import embedding
+    from gesture_pose.core.gesture.candidates import contour_candidates
+    from gesture_pose.core.gesture.costs import unary_cost
+    from gesture_pose.core.gesture.mrf import build_energy, configuration
+    from gesture_pose.core.gesture.refine import _factor_energy
+
+    problem, _ = _tree_problem()
+    rigid = np.flatnonzero(problem.rigid)
+    assert len(rigid) >= 2 and not problem.scored[rigid].any()
+    sets = [contour_candidates(problem.drawing, np.array([20.0]), bool(problem.terminal[j]),
+                               problem.params, 30) for j in range(problem.solving.n_joints)]
+    sets = embedding._with_rigid(problem, sets)
+    energy = build_energy(problem, sets)
+    rng = np.random.default_rng(5)
+    touching = 0.0
+    for _ in range(6):
+        labels = np.array([rng.integers(len(c)) for c in sets])
+        conf = configuration(sets, labels)
+        assert energy.evaluate(labels) == pytest.approx(joint_energy(problem, conf)[0])
+        cost, _ = unary_cost(problem.drawing, conf.positions[rigid], conf.radii[rigid],
+                             False, problem.params)
+        touching = max(touching, float(np.sum(1.0 - cost)))
+        for j in rigid:
+            trial = conf.positions[j] + rng.normal(0.0, 6.0, (4, 2))
+            got = _factor_energy(problem, conf, int(j), trial)
+            want = [joint_energy(problem, with_positions(conf, np.where(
+                np.arange(len(labels))[:, None] == j, t, conf.positions)), [j])[0]
+                for t in trial]
+            np.testing.assert_allclose(got, want, atol=1e-9)
+    assert touching > 0.1

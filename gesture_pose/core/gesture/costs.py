@@ -61,9 +61,10 @@ class CostParams:
             axis as crossed only where it runs across the axis (ours); False counts any
             contour of the end joints within half a step of the axis.
         crossing_room: The consistency term's crossing test applies only to bones whose
-            two joint circles, each widened by a step, leave room between them (ours);
-            False probes the middle of shorter bones, which lies within a step of their
-            joints' own outlines (see :func:`crossing_room`).
+            two joint circles, each widened by a step, leave room between them at the
+            larger of the drawn and the expected length (ours; a bone drawn short cannot
+            escape the test); False probes the middle of shorter bones, which lies within
+            a step of their joints' own outlines (see :func:`crossing_room`).
         stacked_counterparts: Left/right counterparts whose joints lie within this many
             epsilons of each other in the current pose seen in the view may share contour
             samples without an overlap (ours, see
@@ -276,7 +277,7 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
         crossed &= off < eps * np.abs(mx * ux + my * uy)
     cc = crossed.any(axis=2).astype(float)
     if params.crossing_room:
-        cc *= crossing_room(dist, ra, rb, eps)
+        cc *= crossing_room(np.maximum(dist, length), ra, rb, eps)
     same = (ga[:, None] == gb[None, :]) & (ga[:, None] >= 0)
     opposite = same & (sa[:, None] * sb[None, :] < 0)
     cc = np.maximum(cc, opposite.astype(float))
@@ -294,8 +295,12 @@ def crossing_room(dist: np.ndarray, ra: np.ndarray, rb: np.ndarray, eps: float) 
     ball (its pair cost 0.93 instead of 0.26), and the fit drew the wrist and the hand's
     tip up the forearm instead (the tip 8.3% of the figure's height off).
 
+    :func:`pair_cost` passes the larger of the drawn and the expected length, so a
+    placement cannot escape the test by drawing the bone shorter (48 drawings, mean / p90
+    / max %h: 3.62 / 8.84 / 16.53 with the drawn length, 3.55 / 8.57 / 15.81 with it).
+
     Args:
-        dist: Drawn bone lengths, pixels, ``(Ka, Kb)``.
+        dist: Bone lengths, pixels, ``(Ka, Kb)``.
         ra: Head radii, pixels, ``(Ka,)``.
         rb: Tail radii, pixels, ``(Kb,)``.
         eps: Resampling step, pixels.
@@ -324,14 +329,16 @@ def crossing_stations(dist: np.ndarray, ra: np.ndarray, rb: np.ndarray, eps: flo
         count: Stations per bone.
 
     Returns:
-        Parameters in ``[0, 1]``, shape ``(Ka, Kb, count)``; bones shorter than their two
-        radii get stations around their middle only (which ``crossing_room`` excludes
-        from the test).
+        Parameters in ``[0, 1]`` (kept within ``[0.1, 0.9]``), shape ``(Ka, Kb, count)``;
+        a bone without room between its widened circles gets every station at the middle
+        of their overlap (:func:`crossing_room` leaves it out of the test).
     """
     length = np.maximum(dist, 1e-9)
-    lo = np.clip((ra[:, None] + eps) / length, 0.1, 0.5)
-    hi = np.clip(1.0 - (rb[None, :] + eps) / length, 0.5, 0.9)
-    hi = np.maximum(hi, lo)
+    lo = np.clip((ra[:, None] + eps) / length, 0.1, 0.9)
+    hi = np.clip(1.0 - (rb[None, :] + eps) / length, 0.1, 0.9)
+    short = hi < lo  # no room between the circles: the middle of the gap between them
+    mid = 0.5 * (lo + hi)
+    lo, hi = np.where(short, mid, lo), np.where(short, mid, hi)
     s = np.linspace(0.0, 1.0, count)
     return lo[..., None] + (hi - lo)[..., None] * s
 

@@ -274,8 +274,8 @@ def _two_pass(problem, contour: list[JointCandidates], mid_r: np.ndarray, params
 
 
 def _enumerate_terminals(problem, base, contour: list[JointCandidates],
-                         fine: list[JointCandidates], conf: JointCandidates, energy: float,
-                         params, cache: dict) -> tuple[JointCandidates, int]:
+                         fine: list[JointCandidates], conf: JointCandidates, params,
+                         cache: dict) -> tuple[JointCandidates, int]:
     """Section 5.4's enumeration of terminal assignments, when the solution breaks a constraint.
 
     The terminals are the limb ends (:attr:`~.types.SolvingSkeleton.limb_ends`: hands and
@@ -289,7 +289,8 @@ def _enumerate_terminals(problem, base, contour: list[JointCandidates],
     first meeting non-overlap and coverage (:func:`first_consistent`). A solve is the fine
     DP over the candidate sets of the current solution with the terminals restricted to
     their sites; subtrees without a terminal keep their DP tables (``solve_tree``'s memo).
-    The best solve replaces the current solution by :func:`_accepts`.
+    The best solve replaces the current solution by :func:`_accepts` (energies without
+    the samples blocking gave up, as :func:`_resolves` compares them).
 
     Returns:
         ``(configuration, number of solves)``.
@@ -326,18 +327,26 @@ def _enumerate_terminals(problem, base, contour: list[JointCandidates],
     if result is None:
         return conf, count
     got = assign_contours(base, result)
-    old = (assign, joint_energy(problem, conf)[0])
-    return (result if _accepts((got, joint_energy(problem, result)[0]), old, params)
+    old = (assign, joint_energy(base, conf)[0])
+    return (result if _accepts((got, joint_energy(base, result)[0]), old, params)
             else conf), count
 
 
 def _within_reach(problem, cand: JointCandidates, conf: JointCandidates, j: int
                   ) -> JointCandidates:
-    """Candidates of joint ``j`` within 1.2 link lengths and two steps of its parent."""
-    p = problem.solving.joint_parent[j]
+    """Candidates of joint ``j`` within reach of its neighbour as placed.
+
+    Within 1.2 link lengths and two steps of its parent; a root (a limb end when it has a
+    single child) within that of its child, else any.
+    """
+    s = problem.solving
+    p, link = s.joint_parent[j], j
     if p < 0:
-        return cand
-    reach = 1.2 * problem.link_length[j] + 2 * problem.drawing.epsilon
+        children = s.joint_children(j)
+        if len(children) != 1:
+            return cand
+        p = link = int(children[0])
+    reach = 1.2 * problem.link_length[link] + 2 * problem.drawing.epsilon
     return cand.take(np.flatnonzero(
         np.linalg.norm(cand.positions - conf.positions[p], axis=1) <= reach))
 
@@ -392,9 +401,11 @@ def _coverage_moves(problem, base, terminals: np.ndarray, contour: list[JointCan
     terminals (fingers and toes continue them) its assignments differ mostly in sites
     that explain nothing new. Each round tries every terminal at each of its
     :func:`_coverage_sites` (the other terminals free, those moved in earlier rounds kept
-    at their sites), solves the fine DP, and keeps the best solve by (overlaps, coverage,
-    E_match) when :func:`_accepts` takes it; rounds stop when it does not, when the
-    constraints are met, or after ``coverage_moves`` rounds. On the test view's kick the
+    at their sites), solves the fine DP, and keeps the best by (overlaps, coverage,
+    E_match) of the solves :func:`_accepts` takes; rounds stop when it takes none, when
+    the constraints are met, or after ``coverage_moves`` rounds. The DP runs on the
+    current problem (with the samples blocking gave up); acceptance compares ``E_match``
+    without them, as the blocking rounds do (:func:`_resolves`). On the test view's kick the
     kicked foot, drawn longer than its bone through the perspective, was left 7-9% of the
     height short; moved onto its own outline it lands within 4%.
 
@@ -403,18 +414,18 @@ def _coverage_moves(problem, base, terminals: np.ndarray, contour: list[JointCan
     """
     memo: dict = {}
     placed: dict[int, JointCandidates] = {}
-    cur, got, e_cur, count = conf, assign, joint_energy(problem, conf)[0], 0
+    cur, got, e_cur, count = conf, assign, joint_energy(base, conf)[0], 0
     for _ in range(params.coverage_moves):
         best = None
         for j, site in _coverage_sites(base, got, terminals, contour, cur, params):
             trial = {**placed, j: site}
             new, _ = _solve_placed(problem, fine, contour, trial, params, cache, memo)
-            a, e = assign_contours(base, new), joint_energy(problem, new)[0]
+            a, e = assign_contours(base, new), joint_energy(base, new)[0]
             count += 1
             key = (len(a.overlaps), -a.coverage, e)
-            if best is None or key < best[0]:
+            if _accepts((a, e), (got, e_cur), params) and (best is None or key < best[0]):
                 best = (key, new, a, e, trial)
-        if best is None or not _accepts(best[2:4], (got, e_cur), params):
+        if best is None:
             break
         _, cur, got, e_cur, placed = best
         if not got.overlaps and got.coverage >= params.min_coverage:
@@ -628,8 +639,7 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
         fine_sets, labels, energy = _two_pass(problem, contour, mid_r, params, cache)
         conf = configuration(fine_sets, labels)
     (n_bad, _, _), conf, problem, fine_sets, energy = best_sol
-    conf, trials = _enumerate_terminals(problem, base, contour, fine_sets, conf, energy, params,
-                                        cache)
+    conf, trials = _enumerate_terminals(problem, base, contour, fine_sets, conf, params, cache)
     n_bad = len(assign_contours(base, conf).overlaps)
     if n_bad:
         warnings.append(f"{n_bad} pairs of body parts claim the same contour.")
