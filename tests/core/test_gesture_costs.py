@@ -226,9 +226,35 @@ def test_a_bone_without_room_between_its_circles_is_not_tested_for_crossings():
 
     assert cost(False) >= 0.9  # the ball's outline, 4 px from the middle probe, is "crossed"
     assert cost(True) < 0.5
-    # A bone expected longer (70 px: room for the test) cannot escape it by being drawn
-    # short (the length term is made lenient here to isolate Cc).
-    assert cost(True, expected=70.0) >= 0.9
     room = crossing_room(np.array([[34.0], [70.0]]).T, np.array([11.0]), np.array([9.0]),
                          d.epsilon)
     np.testing.assert_array_equal(room, [[False, True]])
+
+
+def test_a_bone_drawn_short_is_still_tested_for_crossings():
+    """A bone expected 70 px long, with room for the crossing test, drawn 52 px long
+    across a line of its head joint's contour: the room is measured at the expected
+    length, so drawing it short does not escape Cc (the length term is made lenient to
+    isolate Cc). Without the line, its head's ball (14 px from the probe) is not crossed."""
+    head, tail = np.array([300.0, 300.0]), np.array([352.0, 300.0])
+    frame = [Stroke(segment([0.0, 0.0], [600.0, 0.0], 40)),
+             Stroke(segment([0.0, 600.0], [600.0, 600.0], 40))]
+    ball = arc(head, 13.0, 0.0, 2 * np.pi, 32)
+    cut = np.concatenate([segment([327.0, 285.0], [327.0, 315.0], 8),
+                          segment([327.0, 315.0], ball[0], 12)])
+    outline = [Stroke(segment(head + [0, s * 10.0], tail + [0, s * 9.0], 12))
+               for s in (1.0, -1.0)]
+
+    def cost(strokes, room: bool) -> float:
+        d = preprocess([*strokes, *outline, *frame])
+        g = d.group[d.tree.query(head + [13.0, 0.0])[1]]
+        params = CostParams(w_direction=0.0, crossing_room=room, sigma_length=1.0)
+        return float(pair_cost(d, head[None], np.array([11.0]), np.array([g]),
+                               np.array([1]), tail[None], np.array([9.0]), np.array([-1]),
+                               np.array([0]), 70.0, params)[0, 0])
+
+    crossed = [Stroke(np.concatenate([cut, ball]))]
+    assert cost(crossed, True) >= 0.9
+    assert cost([Stroke(ball)], True) < 0.5
+    # Measured at the drawn length (52 < 11 + 9 + 2 steps) the bone would escape.
+    assert not crossing_room(np.array([[52.0]]), np.array([11.0]), np.array([9.0]), 17.0)

@@ -278,7 +278,8 @@ def test_coverage_moves_offer_limb_ends_the_contours_left_unexplained():
                            -np.ones(n, int), np.zeros(n), -np.ones((n, 48), int))
     assign = assign_contours(problem, conf)
     assert assign.coverage < 0.85
-    ends = np.flatnonzero(sol.limb_ends)
+    ends = np.flatnonzero(sol.limb_ends & (sol.joint_parent >= 0))
+    assert sol.limb_ends[0] and 0 not in ends  # the root, a limb end, is not moved
     sites = embedding._coverage_sites(problem, assign, ends, contour, conf, params)
     eps = d.epsilon
     moved = [s for j, s in sites if j == wrist]
@@ -287,12 +288,12 @@ def test_coverage_moves_offer_limb_ends_the_contours_left_unexplained():
     for j, s in sites:
         assert np.linalg.norm(s.positions[0] - placed[j]) > 1.5 * eps
         assert np.count_nonzero(~assign.covered[s.aligned[0][s.aligned[0] >= 0]]) >= 2
-        # Within reach of its neighbour as placed: the parent, or a root's single child.
-        k = int(sol.joint_parent[j]) if sol.joint_parent[j] >= 0 else int(
-            sol.joint_children(j)[0])
-        link = j if sol.joint_parent[j] >= 0 else k
-        reach = 1.2 * problem.link_length[link] + 2 * eps
-        assert np.linalg.norm(s.positions[0] - placed[k]) <= reach
+        # Never the root (the shoulder, a limb end of this chain: offered the hand's cap it
+        # would reverse the arm), and within reach of the parent as placed.
+        k = int(sol.joint_parent[j])
+        assert k >= 0
+        assert np.linalg.norm(s.positions[0] - placed[k]) <= (
+            1.2 * problem.link_length[j] + 2 * eps)
     # The moves place the wrist on the cap (the DP re-solved with it there) and explain
     # the drawing: the constraints are met.
     out, solves = embedding._coverage_moves(problem, problem, ends, contour, contour, conf,
@@ -316,3 +317,39 @@ def test_an_enumerated_solution_is_accepted_by_the_constraints_or_its_gains():
     assert embedding._accepts((got(1, 0.75), 5.4), old, params)      # covers more
     assert not embedding._accepts((got(1, 0.75), 5.6), old, params)  # for too much
     assert not embedding._accepts((got(1, 0.71), 5.0), old, params)  # too little gain
+
+
+def test_coverage_moves_keep_the_best_solve_the_rule_accepts(monkeypatch):
+    """Each round ranks only the solves _accepts takes: a better-ranked solve it refuses
+    (more coverage bought with much more energy) does not end the moves."""
+    n = 2
+    conf = JointCandidates(np.zeros((n, 2)), np.ones(n), np.zeros(n, int), -np.ones(n, int),
+                           -np.ones(n, int), np.zeros(n), -np.ones((n, 48), int))
+    site = {k: replace(conf.take(np.array([0])), positions=np.array([[float(k), 0.0]]))
+            for k in (1, 2)}
+    # site 1: coverage 0.80 for 9.0 more energy (refused); site 2: 0.75 for 0.2 (taken)
+    outcome = {1: (0.80, 10.0), 2: (0.75, 1.2)}
+
+    def fake_sites(problem, assign, terminals, contour, cur, params):
+        return [] if cur.positions[1, 0] else [(1, site[1]), (1, site[2])]
+
+    def fake_solve(problem, fine, contour, placed, params, cache, memo):
+        pos = conf.positions.copy()
+        pos[1] = placed[1].positions[0]
+        return replace(conf, positions=pos), 0.0
+
+    def fake_assign(problem, c):
+        cov = outcome[int(c.positions[1, 0])][0] if c.positions[1, 0] else 0.70
+        return SimpleNamespace(overlaps=[], coverage=cov, covered=np.zeros(1, bool))
+
+    def fake_energy(problem, c, joints=None):
+        return (outcome[int(c.positions[1, 0])][1] if c.positions[1, 0] else 1.0), {}
+
+    monkeypatch.setattr(embedding, "_coverage_sites", fake_sites)
+    monkeypatch.setattr(embedding, "_solve_placed", fake_solve)
+    monkeypatch.setattr(embedding, "assign_contours", fake_assign)
+    monkeypatch.setattr(embedding, "joint_energy", fake_energy)
+    start = fake_assign(None, conf)
+    out, solves = embedding._coverage_moves(None, None, np.array([1]), [], [], conf, start,
+                                            GestureParams(), {})
+    assert solves == 2 and out.positions[1, 0] == 2.0

@@ -63,8 +63,9 @@ class CostParams:
         crossing_room: The consistency term's crossing test applies only to bones whose
             two joint circles, each widened by a step, leave room between them at the
             larger of the drawn and the expected length (ours; a bone drawn short cannot
-            escape the test); False probes the middle of shorter bones, which lies within
-            a step of their joints' own outlines (see :func:`crossing_room`).
+            escape the test); False tests the others too, at the middle of the overlap of
+            their widened circles, within a step of their joints' own outlines (see
+            :func:`crossing_room`).
         stacked_counterparts: Left/right counterparts whose joints lie within this many
             epsilons of each other in the current pose seen in the view may share contour
             samples without an overlap (ours, see
@@ -298,6 +299,9 @@ def crossing_room(dist: np.ndarray, ra: np.ndarray, rb: np.ndarray, eps: float) 
     :func:`pair_cost` passes the larger of the drawn and the expected length, so a
     placement cannot escape the test by drawing the bone shorter (48 drawings, mean / p90
     / max %h: 3.62 / 8.84 / 16.53 with the drawn length, 3.55 / 8.57 / 15.81 with it).
+    The trade-off: the probes stay on the drawn bone, so a bone drawn much shorter than
+    its length (a hand pointing at the viewer) is probed near its joints' own outlines
+    again and can pay ``Cc`` for a drawn joint ball.
 
     Args:
         dist: Bone lengths, pixels, ``(Ka, Kb)``.
@@ -331,7 +335,8 @@ def crossing_stations(dist: np.ndarray, ra: np.ndarray, rb: np.ndarray, eps: flo
     Returns:
         Parameters in ``[0, 1]`` (kept within ``[0.1, 0.9]``), shape ``(Ka, Kb, count)``;
         a bone without room between its widened circles gets every station at the middle
-        of their overlap (:func:`crossing_room` leaves it out of the test).
+        of their overlap (:func:`crossing_room` leaves it out of the test unless its
+        expected length has room).
     """
     length = np.maximum(dist, 1e-9)
     lo = np.clip((ra[:, None] + eps) / length, 0.1, 0.9)

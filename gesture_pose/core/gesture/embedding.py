@@ -279,7 +279,7 @@ def _enumerate_terminals(problem, base, contour: list[JointCandidates],
     """Section 5.4's enumeration of terminal assignments, when the solution breaks a constraint.
 
     The terminals are the limb ends (:attr:`~.types.SolvingSkeleton.limb_ends`: hands and
-    feet too when fingers and toes continue them). With ``coverage_moves`` (ours, the
+    feet too when fingers and toes continue them) but a root. With ``coverage_moves`` (ours, the
     default) they are moved onto the contours the solution leaves unexplained
     (:func:`_coverage_moves`). Without, as in the paper: each terminal's sites are its
     contour candidates consolidated at 3 epsilon within reach of its parent as placed
@@ -298,7 +298,8 @@ def _enumerate_terminals(problem, base, contour: list[JointCandidates],
     d = problem.drawing
     eps = d.epsilon
     assign = assign_contours(base, conf)
-    terminals = np.flatnonzero(problem.solving.limb_ends)
+    # Roots stay: a chain's first joint offered its far end's cap would reverse the chain.
+    terminals = np.flatnonzero(problem.solving.limb_ends & (problem.solving.joint_parent >= 0))
     if (not assign.overlaps and assign.coverage >= params.min_coverage) or terminals.size == 0:
         return conf, 0
     if params.coverage_moves:
@@ -334,19 +335,12 @@ def _enumerate_terminals(problem, base, contour: list[JointCandidates],
 
 def _within_reach(problem, cand: JointCandidates, conf: JointCandidates, j: int
                   ) -> JointCandidates:
-    """Candidates of joint ``j`` within reach of its neighbour as placed.
+    """Candidates of joint ``j`` (not a root) within reach of its parent as placed.
 
-    Within 1.2 link lengths and two steps of its parent; a root (a limb end when it has a
-    single child) within that of its child, else any.
+    Reach: 1.2 link lengths and two steps.
     """
-    s = problem.solving
-    p, link = s.joint_parent[j], j
-    if p < 0:
-        children = s.joint_children(j)
-        if len(children) != 1:
-            return cand
-        p = link = int(children[0])
-    reach = 1.2 * problem.link_length[link] + 2 * problem.drawing.epsilon
+    p = problem.solving.joint_parent[j]
+    reach = 1.2 * problem.link_length[j] + 2 * problem.drawing.epsilon
     return cand.take(np.flatnonzero(
         np.linalg.norm(cand.positions - conf.positions[p], axis=1) <= reach))
 

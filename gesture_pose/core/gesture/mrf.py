@@ -472,7 +472,9 @@ def joint_energy(problem: MatchProblem, conf: JointCandidates,
     which the search had not asked for. One exception, measured and kept: in the search's
     re-solves after blocking (:func:`build_energy` with ``blocked``), a rigid joint at the
     end of a bone (a clavicle's tail) pays the unary of its circle's unblocked samples;
-    without it 48 drawings went from 3.62 / 8.84 to 3.98 / 9.68 %h (mean / p90).
+    without it 48 drawings went from 3.62 / 8.84 to 3.98 / 9.68 %h (mean / p90). With
+    ``rigid_search`` off the search also keeps a rigid joint's own contour candidates,
+    whose unaries count there.
 
     Args:
         problem: The matching problem.

@@ -163,13 +163,11 @@ def _chain_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
     def at(k: int) -> np.ndarray:
         return moved[k] if k in moved else pos[k][None]
 
-    scored = problem.scored
-    for k in chain:
-        if scored[k]:
-            r = np.full(t, conf.radii[k])
-            aligned = unary_cost(d, moved[int(k)], r, bool(problem.terminal[k]), prm)[1]
-            total += unary_from_aligned(aligned, bool(problem.terminal[k]), prm,
-                                        problem.bone_blocked(k))
+    for k in chain:  # free joints only (limb_ends): each has its unary term
+        r = np.full(t, conf.radii[k])
+        aligned = unary_cost(d, moved[int(k)], r, bool(problem.terminal[k]), prm)[1]
+        total += unary_from_aligned(aligned, bool(problem.terminal[k]), prm,
+                                    problem.bone_blocked(k))
         total += _per_trial(_conf_link(problem, conf, int(k), at(par[k]), moved[int(k)]), t)
     top = int(chain[0])
     for k in [top, *np.flatnonzero(par == top)]:
