@@ -622,3 +622,35 @@ def test_a_slid_chest_is_put_back_with_the_clavicles_the_fit_moved_with_it():
     off = np.linalg.norm(back - emb.joints2d, axis=1)
     tails = [s.joint_bones.index("clavicle.L tail"), s.joint_bones.index("clavicle.R tail")]
     assert off[tails].min() > 10.0 and np.delete(off, tails).max() < 1e-9
+
+
+def test_joints_below_an_axis_joint_follow_it_once():
+    """A disconnected short chest hangs from the spine's tail by a rigid offset and lies
+    on the body's axis, with the arms' heads hanging from its tail: respacing moves each
+    axis joint itself, and the arms' heads follow only the chest's tail (before, they were
+    moved once for the spine's tail too and ended 35 px off)."""
+    from gesture_pose.core.gesture.depth.regularity import rigid_followers, spine_runs
+
+    heads = np.array([[0, 0, 0], [0, 0, 0.3], [0, 0, 0.62], [0, 0, 0.72], [0, 0, 0.85],
+                      [0.1, 0, 0.72], [-0.1, 0, 0.72]], float)
+    tails = np.array([[0, 0, 0.3], [0, 0, 0.6], [0, 0, 0.72], [0, 0, 0.85], [0, 0, 1.1],
+                      [0.6, 0, 0.72], [-0.6, 0, 0.72]], float)
+    frames = np.stack([frame_along(t - h) for h, t in zip(heads, tails, strict=True)])
+    sk = Skeleton(("hips", "spine", "chest", "neck", "head", "arm.L", "arm.R"),
+                  np.array([-1, 0, 1, 2, 3, 2, 2]), heads, tails, frames, np.ones(7, bool),
+                  np.array([False, True, False, True, True, False, False]), np.ones(7, bool))
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=True)
+    emb = project_embedding(sk, s, Pose.identity(sk.n_bones), cam)
+    frame = energies.view_frame(cam, s.rest_joints.mean(axis=0))
+    radius = np.full(s.n_joints, 0.1)
+    names = s.joint_bones
+    spine, chest, neck = (names.index(n) for n in ("spine tail", "chest tail", "neck tail"))
+    group = [spine, *rigid_followers(s, spine, radius)]
+    assert chest in group  # the fit's rigid group runs through the chest to the arms
+    slid = emb.joints2d.copy()
+    slid[group] += 0.5 * (slid[neck] - slid[chest])  # slid up the neck, as the fit does
+    back = spine_runs(s, slid, s.rest_joints, frame, radius=radius * frame.scale)
+    arms = [names.index("arm.L head"), names.index("arm.R head")]
+    np.testing.assert_allclose(back[arms] - back[chest], emb.joints2d[arms]
+                               - emb.joints2d[chest], atol=1e-6)

@@ -366,7 +366,8 @@ def axial_joints(solving: SolvingSkeleton) -> np.ndarray:
 
 
 def rigid_followers(solving: SolvingSkeleton, joint: int,
-                    radius: np.ndarray | None = None) -> np.ndarray:
+                    radius: np.ndarray | None = None,
+                    stop: np.ndarray | None = None) -> np.ndarray:
     """The joints the 2D fit moves with ``joint``: its rigid neighbourhood below it.
 
     These are the descendants reached through rigid-offset links (``joint_link_bone <
@@ -381,6 +382,10 @@ def rigid_followers(solving: SolvingSkeleton, joint: int,
         solving: The solving skeleton.
         joint: The joint moved.
         radius: Radius of each joint, world units, ``(J,)``, or None (no interior tails).
+        stop: Joints the walk neither collects nor passes through, ``(J,)`` bool, or None
+            (:func:`spine_runs` stops at the body's axis, whose joints it places itself:
+            joints below an axis joint follow that joint only, not every axis joint above
+            it too).
 
     Returns:
         Joint indices, ``joint`` excluded, shape ``(k,)``.
@@ -389,6 +394,8 @@ def rigid_followers(solving: SolvingSkeleton, joint: int,
     rigid = (link < 0) & (par >= 0)
     if radius is not None:
         rigid |= interior_joints(solving, np.asarray(radius, float))
+    if stop is not None:
+        rigid &= ~np.asarray(stop, bool)
     group = [int(joint)]
     k = 0
     while k < len(group):
@@ -458,8 +465,7 @@ def spine_runs(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.n
             moved = np.stack([np.interp(target, arc, pts[:, 0]),
                               np.interp(target, arc, pts[:, 1])], 1)[1:-1]
             for j, p in zip(joints[1:-1], moved, strict=True):
-                follow = rigid_followers(solving, int(j), world_radius)
-                follow = follow[~on_axis[follow]]
+                follow = rigid_followers(solving, int(j), world_radius, on_axis)
                 out[follow] += p - out[j]
                 out[j] = p
         start = i + 1
