@@ -431,7 +431,9 @@ def build_energy(problem: MatchProblem, cands: list[JointCandidates],
             pair.append(None)
         else:
             blk = problem.bone_blocked(j)
-            key = (j, stations, cands[p].positions.tobytes(), cands[j].positions.tobytes(),
+            # Everything the link cost reads: positions, radii, contour groups and sides.
+            key = (j, stations, *(getattr(cands[k], f).tobytes() for k in (p, j)
+                                  for f in ("positions", "radii", "group", "side")),
                    None if blk is None else np.packbits(blk).tobytes(), problem.params)
             table = None if cache is None else cache.get(key)
             if table is None:
