@@ -14,7 +14,7 @@ from gesture_pose.core.gesture.refine import (
     RefineParams,
     _chain_energy,
     _set_energy,
-    limb_ends,
+    limb_chains,
     refine,
     rigid_groups,
     with_positions,
@@ -46,19 +46,19 @@ def _arm():
     return problem, conf
 
 
-def test_limb_ends_are_free_joints_with_their_descendants():
+def test_limb_chains_are_free_joints_with_their_descendants():
     problem, _ = _arm()
-    ends = limb_ends(problem, 3)
+    ends = limb_chains(problem, 3)
     names = problem.solving.joint_bones
     # The elbow carries the wrist; the wrist alone and the root are not limb ends.
     assert [[names[j] for j in e] for e in ends] == [["b0 tail", "b1 tail"]]
-    assert limb_ends(problem, 1) == []
+    assert limb_chains(problem, 1) == []
 
 
 def test_chain_energy_is_the_change_of_the_whole_energy():
     """Translating a limb end changes exactly the factors the chain energy sums."""
     problem, conf = _arm()
-    chain = limb_ends(problem, 3)[0]
+    chain = limb_chains(problem, 3)[0]
     shift = np.array([[0.0, 0.0], [6.0, -4.0], [-15.0, 2.0], [3.0, 20.0]])
     chained = _chain_energy(problem, conf, conf.positions, chain, shift)
     whole = []
@@ -128,7 +128,7 @@ def test_refinement_of_a_displaced_limb_end_regains_the_energy():
     of the true joints, deterministically."""
     problem, conf = _arm()
     eps = problem.drawing.epsilon
-    chain = limb_ends(problem, 3)[0]
+    chain = limb_chains(problem, 3)[0]
     params = RefineParams(chain_trials=8, min_step=0.125, converged=0.05, trials=24,
                           iterations=12)
     truth = joint_energy(problem, conf)[0]

@@ -52,7 +52,7 @@ class RefineParams:
             (infinite: always, as in the paper). A group's rigid joints do not walk on
             their own: the group walks as a whole.
         chain_trials: Trial moves per sweep of each limb end moved as a whole (a joint
-            with all its descendants, see :func:`limb_ends`); 0 disables them.
+            with all its descendants, see :func:`limb_chains`); 0 disables them.
         chain_size: Most joints of such a limb end.
     """
 
@@ -117,7 +117,7 @@ def _factor_energy(problem: MatchProblem, conf: JointCandidates, j: int,
     return total
 
 
-def limb_ends(problem: MatchProblem, size: int) -> list[np.ndarray]:
+def limb_chains(problem: MatchProblem, size: int) -> list[np.ndarray]:
     """Free joints with their descendants, when those are free and at most ``size`` joints.
 
     On a humanoid: an elbow with the wrist and the hand's tail, a wrist with the hand's
@@ -142,7 +142,7 @@ def _chain_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
                   chain: np.ndarray, shift: np.ndarray) -> np.ndarray:
     """Energy of the factors that change when ``chain`` is translated by each shift, ``(T,)``.
 
-    ``chain`` is a joint with all its descendants (:func:`limb_ends`): their unaries, the
+    ``chain`` is a joint with all its descendants (:func:`limb_chains`): their unaries, the
     bones into them (their conformity and consistency move with them; lengths and
     directions inside the chain do not) and the triplets that include the joint's parent.
     Triplets inside the chain are translation invariant and left out.
@@ -163,7 +163,7 @@ def _chain_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
     def at(k: int) -> np.ndarray:
         return moved[k] if k in moved else pos[k][None]
 
-    for k in chain:  # free joints only (limb_ends): each has its unary term
+    for k in chain:  # free joints only (limb_chains): each has its unary term
         r = np.full(t, conf.radii[k])
         aligned = unary_cost(d, moved[int(k)], r, bool(problem.terminal[k]), prm)[1]
         total += unary_from_aligned(aligned, bool(problem.terminal[k]), prm,
@@ -380,7 +380,7 @@ def refine(problem: MatchProblem, conf: JointCandidates, template: np.ndarray,
     moves, sweeps = 0, 0
     groups = rigid_groups(problem) if params.snap_rigid else []
     roots = {int(g[0]): g for g in groups}
-    chains = limb_ends(problem, params.chain_size) if params.chain_trials else []
+    chains = limb_chains(problem, params.chain_size) if params.chain_trials else []
     step = params.step
     for sweep in range(1, params.iterations + 1):
         sweeps = sweep
