@@ -592,13 +592,10 @@ def _figure_with_clavicles() -> Skeleton:
                     np.ones(9, bool))
 
 
-def test_a_slid_chest_is_put_back_with_the_clavicles_the_fit_moved_with_it():
-    """The 2D fit moves a chest with its rigid neighbourhood: the clavicles' heads (rigid
-    offsets) and their tails, interior bones inside the torso's outline (their circles
-    overlap the chest's). Respacing the spine run puts the chest back with all four, and
-    only those: the arms' tails, placed on their own contours, stay."""
-    from gesture_pose.core.gesture.depth.regularity import rigid_followers, spine_runs
-
+def _clavicle_case():
+    """The figure with clavicles, seen from the front: ``(skeleton, solving, camera,
+    embedding, view frame, chest tail, neck tail, radii)``, the radii (world units) making
+    the clavicles' tails interior to the chest (0.15 m against 0.05 elsewhere)."""
     sk = _figure_with_clavicles()
     s = solving_skeleton(sk)
     cam = front_camera(ortho=True)
@@ -607,6 +604,17 @@ def test_a_slid_chest_is_put_back_with_the_clavicles_the_fit_moved_with_it():
     chest, neck = s.joint_bones.index("chest tail"), s.joint_bones.index("neck tail")
     radius = np.full(s.n_joints, 0.05)
     radius[chest] = 0.15
+    return sk, s, cam, emb, frame, chest, neck, radius
+
+
+def test_a_slid_chest_is_put_back_with_the_clavicles_the_fit_moved_with_it():
+    """The 2D fit moves a chest with its rigid neighbourhood: the clavicles' heads (rigid
+    offsets) and their tails, interior bones inside the torso's outline (their circles
+    overlap the chest's). Respacing the spine run puts the chest back with all four, and
+    only those: the arms' tails, placed on their own contours, stay."""
+    from gesture_pose.core.gesture.depth.regularity import rigid_followers, spine_runs
+
+    sk, s, cam, emb, frame, chest, neck, radius = _clavicle_case()
     group = rigid_followers(s, chest, radius)
     assert sorted(s.joint_bones[j] for j in group) == [
         "clavicle.L head", "clavicle.L tail", "clavicle.R head", "clavicle.R tail"]
@@ -664,14 +672,7 @@ def test_the_pose_puts_a_slid_chest_back_with_the_clavicles_by_the_drawn_radii()
     so is it when solve_pose3d does not pass the radii on)."""
     from gesture_pose.core.gesture.depth.regularity import rigid_followers
 
-    sk = _figure_with_clavicles()
-    s = solving_skeleton(sk)
-    cam = front_camera(ortho=True)
-    emb = project_embedding(sk, s, Pose.identity(sk.n_bones), cam)
-    frame = energies.view_frame(cam, s.rest_joints.mean(axis=0))
-    chest, neck = s.joint_bones.index("chest tail"), s.joint_bones.index("neck tail")
-    radius = np.full(s.n_joints, 0.05)
-    radius[chest] = 0.15
+    sk, s, cam, emb, frame, chest, neck, radius = _clavicle_case()
     group = [chest, *rigid_followers(s, chest, radius)]
     assert len(group) == 5  # the chest, the clavicles' heads and tails
     slid = emb.joints2d.copy()
