@@ -607,7 +607,7 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
 
     t0 = time.perf_counter()
     cache: dict = {}
-    cands, labels, energy = _two_pass(problem, contour, mid_r, params, cache)
+    cands, labels, _ = _two_pass(problem, contour, mid_r, params, cache)
     timings["mrf"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -622,7 +622,7 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
         plain = joint_energy(base, conf)[0]
         key = (n_bad, assign.coverage, plain)
         if best_sol is None or _resolves(key, best_sol[0], params):
-            best_sol = (key, conf, problem, fine_sets, energy)
+            best_sol = (key, conf, problem, fine_sets)
         if n_bad == 0 and assign.coverage >= params.min_coverage:
             break
         if n_bad == 0 or rounds == params.max_terminal_rounds:
@@ -632,9 +632,9 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
             break  # the same problem again would give the same answer
         blocked = grown
         problem = replace(base, blocked=blocked.copy())
-        fine_sets, labels, energy = _two_pass(problem, contour, mid_r, params, cache)
+        fine_sets, labels, _ = _two_pass(problem, contour, mid_r, params, cache)
         conf = configuration(fine_sets, labels)
-    (n_bad, _, _), conf, problem, fine_sets, energy = best_sol
+    (n_bad, _, _), conf, problem, fine_sets = best_sol
     conf, trials = _enumerate_terminals(problem, base, contour, fine_sets, conf, params, cache)
     n_bad = len(assign_contours(base, conf).overlaps)
     if n_bad:
