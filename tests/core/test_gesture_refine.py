@@ -12,7 +12,6 @@ from gesture_pose.core.gesture.mrf import interior_joints, joint_energy, make_pr
 from gesture_pose.core.gesture.preprocess import preprocess
 from gesture_pose.core.gesture.refine import (
     RefineParams,
-    _chain_energy,
     _set_energy,
     limb_chains,
     refine,
@@ -56,11 +55,13 @@ def test_limb_chains_are_free_joints_with_their_descendants():
 
 
 def test_chain_energy_is_the_change_of_the_whole_energy():
-    """Translating a limb end changes exactly the factors the chain energy sums."""
+    """Translating a limb end changes its factors' energy (what the refinement compares
+    for a chain) exactly as much as the whole energy."""
     problem, conf = _arm()
     chain = limb_chains(problem, 3)[0]
     shift = np.array([[0.0, 0.0], [6.0, -4.0], [-15.0, 2.0], [3.0, 20.0]])
-    chained = _chain_energy(problem, conf, conf.positions, chain, shift)
+    chained = _set_energy(problem, conf, conf.positions, chain,
+                          conf.positions[chain][None] + shift[:, None])
     whole = []
     for d in shift:
         pos = conf.positions.copy()
@@ -153,7 +154,6 @@ def test_the_search_and_the_refinement_score_the_same_energy():
     from gesture_pose.core.gesture.candidates import contour_candidates
     from gesture_pose.core.gesture.costs import unary_cost
     from gesture_pose.core.gesture.mrf import build_energy, configuration
-    from gesture_pose.core.gesture.refine import _factor_energy
 
     problem, _ = _tree_problem()
     rigid = np.flatnonzero(problem.rigid)
@@ -173,7 +173,7 @@ def test_the_search_and_the_refinement_score_the_same_energy():
         touching = max(touching, float(np.sum(1.0 - cost)))
         for j in rigid:
             trial = conf.positions[j] + rng.normal(0.0, 6.0, (4, 2))
-            got = _factor_energy(problem, conf, int(j), trial)
+            got = _set_energy(problem, conf, conf.positions, np.array([j]), trial[:, None])
             want = [joint_energy(problem, with_positions(conf, np.where(
                 np.arange(len(labels))[:, None] == j, t, conf.positions)), [j])[0]
                 for t in trial]

@@ -70,53 +70,6 @@ class RefineParams:
     chain_size: int = 3
 
 
-def _factor_energy(problem: MatchProblem, conf: JointCandidates, j: int,
-                   trial: np.ndarray) -> np.ndarray:
-    """Energy of the factors touching joint ``j`` with ``j`` moved to each trial, ``(T,)``."""
-    s, d, prm = problem.solving, problem.drawing, problem.params
-    par = s.joint_parent
-    t = len(trial)
-    r = np.full(t, conf.radii[j])
-    g = np.full(t, conf.group[j])
-    sd = np.full(t, conf.side[j])
-    total = np.zeros(t)
-    if problem.scored[j]:
-        total = unary_from_aligned(unary_cost(d, trial, r, bool(problem.terminal[j]), prm)[1],
-                                   bool(problem.terminal[j]), prm, problem.bone_blocked(j))
-
-    c1 = conf.take(np.arange(len(conf)))
-    P, R, G, S = c1.positions, c1.radii, c1.group, c1.side
-
-    def one(k: int):
-        return P[k:k + 1], R[k:k + 1], G[k:k + 1], S[k:k + 1]
-
-    p = par[j]
-    if p >= 0:
-        total = total + link_cost(problem, j, *one(p), trial, r, g, sd)[0]
-    for c in np.flatnonzero(par == j):
-        total = total + link_cost(problem, c, trial, r, g, sd, *one(c))[:, 0]
-
-    def trip(k: int, pa, pb, pc, ga, gb, gc) -> np.ndarray:
-        shared = (ga[:, None, None] == gb[None, :, None]) & (gb[None, :, None] ==
-                                                              gc[None, None, :]) & (gc >= 0)
-        return triplet_cost(pa, pb, pc, shared, float(problem.rest_angle[k]), prm)
-
-    # j as the last joint, the middle joint, or the first joint of a triplet.
-    if p >= 0 and problem.has_triplet(j):
-        gp = par[p]
-        total = total + trip(j, P[gp:gp + 1], P[p:p + 1], trial, G[gp:gp + 1], G[p:p + 1],
-                             g)[0, 0, :]
-    for c in np.flatnonzero(par == j):
-        if problem.has_triplet(c):
-            total = total + trip(c, P[p:p + 1], trial, P[c:c + 1], G[p:p + 1], g,
-                                 G[c:c + 1])[0, :, 0]
-        for gc in np.flatnonzero(par == c):
-            if problem.has_triplet(gc):
-                total = total + trip(gc, trial, P[c:c + 1], P[gc:gc + 1], g, G[c:c + 1],
-                                     G[gc:gc + 1])[:, 0, 0]
-    return total
-
-
 def limb_chains(problem: MatchProblem, size: int) -> list[np.ndarray]:
     """Free joints with their descendants, when those are free and at most ``size`` joints.
 
@@ -136,50 +89,6 @@ def limb_chains(problem: MatchProblem, size: int) -> list[np.ndarray]:
         if 2 <= len(sub) <= size and not rigid[sub].any():
             out.append(np.array(sub))
     return out
-
-
-def _chain_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
-                  chain: np.ndarray, shift: np.ndarray) -> np.ndarray:
-    """Energy of the factors that change when ``chain`` is translated by each shift, ``(T,)``.
-
-    ``chain`` is a joint with all its descendants (:func:`limb_chains`): their unaries, the
-    bones into them (their conformity and consistency move with them; lengths and
-    directions inside the chain do not) and the triplets that include the joint's parent.
-    Triplets inside the chain are translation invariant and left out.
-
-    Args:
-        problem: The matching problem.
-        conf: The configuration's labels (radii, groups, sides).
-        pos: Current joint positions, pixels, ``(J, 2)``.
-        chain: Joint indices, top joint first, ``(k,)``.
-        shift: Translations, pixels, ``(T, 2)``.
-    """
-    s, d, prm = problem.solving, problem.drawing, problem.params
-    par = s.joint_parent
-    t = len(shift)
-    total = np.zeros(t)
-    moved = {int(k): pos[k][None] + shift for k in chain}
-
-    def at(k: int) -> np.ndarray:
-        return moved[k] if k in moved else pos[k][None]
-
-    for k in chain:  # free joints only (limb_chains): each has its unary term
-        r = np.full(t, conf.radii[k])
-        aligned = unary_cost(d, moved[int(k)], r, bool(problem.terminal[k]), prm)[1]
-        total += unary_from_aligned(aligned, bool(problem.terminal[k]), prm,
-                                    problem.bone_blocked(k))
-        total += _per_trial(_conf_link(problem, conf, int(k), at(par[k]), moved[int(k)]), t)
-    top = int(chain[0])
-    for k in [top, *np.flatnonzero(par == top)]:
-        if not problem.has_triplet(k):
-            continue
-        a, b = par[par[k]], par[k]
-        ga, gb, gc = conf.group[a], conf.group[b], conf.group[k]
-        shared = bool(ga == gb == gc and gc >= 0)
-        table = triplet_cost(at(a), at(b), at(k), np.array(shared),
-                             float(problem.rest_angle[k]), prm)
-        total += _per_trial(table, t)
-    return total
 
 
 def _conf_link(problem: MatchProblem, conf: JointCandidates, j: int, pa: np.ndarray,
@@ -393,11 +302,10 @@ def refine(problem: MatchProblem, conf: JointCandidates, template: np.ndarray,
                 moved += int(new is not pos)
                 pos = new
                 continue
-            cur = with_positions(conf, pos)
             trial = pos[j] + rng.normal(0.0, step * eps, (params.trials, 2))
             trial = np.concatenate([pos[j:j + 1], trial])
             ok = _same_side(problem, pos[j], trial, 2.0 * conf.radii[j] + eps)
-            energy = _factor_energy(problem, cur, j, trial)
+            energy = _set_energy(problem, conf, pos, np.array([j]), trial[:, None])
             energy = np.where(ok, energy, np.inf)
             k = int(np.argmin(energy))
             if k > 0 and energy[k] < energy[0] - 1e-6:
@@ -410,7 +318,10 @@ def refine(problem: MatchProblem, conf: JointCandidates, template: np.ndarray,
                                     rng.normal(0.0, step * eps, (params.chain_trials, 2))])
             top = int(chain[0])
             ok = _same_side(problem, pos[top], pos[top] + shift, 2.0 * conf.radii[top] + eps)
-            energy = np.where(ok, _chain_energy(problem, conf, pos, chain, shift), np.inf)
+            # A translation leaves the chain's inner triplets as they are: the energies
+            # differ by exactly the factors it changes.
+            moved_chain = pos[chain][None] + shift[:, None]
+            energy = np.where(ok, _set_energy(problem, conf, pos, chain, moved_chain), np.inf)
             k = int(np.argmin(energy))
             if k > 0 and energy[k] < energy[0] - 1e-6:
                 pos = pos.copy()
