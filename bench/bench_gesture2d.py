@@ -91,6 +91,11 @@ def measure(arm, camera, traced, label: list) -> list:
                       meshes.weights, override=data.gesture_override)
     seconds = time.perf_counter() - t0
     truth = camera.project(posed_joints(emb.solving, data.skeleton, data.pose))
+    return _row(label, emb, truth, seconds)
+
+
+def _row(label: list, emb, truth: np.ndarray, seconds: float) -> list:
+    """A table row (:data:`HEADERS`) for a fit against the true joints in the view."""
     return [*label, emb.solving.n_joints, *errors(emb.solving, emb.joints2d, truth),
             swaps(emb.solving, emb.joints2d, truth), 100.0 * emb.coverage, seconds]
 
@@ -166,10 +171,8 @@ def adventurer_rows(quick: bool) -> list[list]:
                               bind_pose(rest), md.rest_vertices, camera, md.weights)
             seconds = time.perf_counter() - t0
             truth = camera.project(posed_joints(emb.solving, data.skeleton, data.pose))
-            rows.append(["adventurer", f"cmu {k}", "front", drawing, emb.solving.n_joints,
-                         *errors(emb.solving, emb.joints2d, truth),
-                         swaps(emb.solving, emb.joints2d, truth), 100.0 * emb.coverage,
-                         seconds])
+            rows.append(_row(["adventurer", f"cmu {k}", "front", drawing], emb, truth,
+                             seconds))
     return rows
 
 
