@@ -232,9 +232,7 @@ class MatchProblem:
         They are placed from their parent by the offset in the view: rigid links (hip and
         shoulder heads) and interior bones' tails.
         """
-        out = self.solving.joint_link_bone < 0
-        out &= self.solving.joint_parent >= 0
-        return out if self.interior is None else out | self.interior
+        return rigid_joints(self.solving, self.interior)
 
     @property
     def scored(self) -> np.ndarray:
@@ -277,6 +275,39 @@ class MatchProblem:
     def has_triplet(self, j: int) -> bool:
         """Whether joint ``j`` closes a triplet (two consecutive bone links)."""
         return bool(np.isfinite(self.rest_angle[j]))
+
+
+def rigid_joints(solving: SolvingSkeleton, interior: np.ndarray | None = None) -> np.ndarray:
+    """Joints placed from their parent by the offset in the view, ``(J,)`` bool.
+
+    Rigid links (hip and shoulder heads: unconnected heads of bones) and, when given, the
+    tails of interior bones (:func:`interior_joints`).
+
+    Args:
+        solving: The solving skeleton.
+        interior: Interior bones' tails, ``(J,)`` bool, or None.
+    """
+    out = (solving.joint_link_bone < 0) & (solving.joint_parent >= 0)
+    return out if interior is None else out | interior
+
+
+def rigid_descendants(parent: np.ndarray, rigid: np.ndarray, joint: int) -> np.ndarray:
+    """``joint`` and the ``rigid`` joints reached from it down the tree, ``joint`` first.
+
+    Args:
+        parent: Parent of each joint, -1 for roots, ``(J,)``.
+        rigid: Joints the walk may collect and pass through, ``(J,)`` bool.
+        joint: Where the walk starts.
+
+    Returns:
+        Joint indices in the order of the walk (breadth first), ``(k,)`` int.
+    """
+    group = [int(joint)]
+    k = 0
+    while k < len(group):
+        group += [int(c) for c in np.flatnonzero((parent == group[k]) & rigid)]
+        k += 1
+    return np.asarray(group, int)
 
 
 def interior_joints(solving: SolvingSkeleton, radius: np.ndarray) -> np.ndarray:

@@ -28,7 +28,7 @@ from .costs import (
     unary_cost,
     unary_from_aligned,
 )
-from .mrf import MatchProblem, joint_energy, link_cost
+from .mrf import MatchProblem, joint_energy, link_cost, rigid_descendants
 
 
 @dataclass(frozen=True)
@@ -147,18 +147,10 @@ def rigid_groups(problem: MatchProblem) -> list[np.ndarray]:
     tails such as a clavicle's) are collected down the tree, so a chest's group holds the
     shoulder heads and the clavicle tails.
     """
-    s = problem.solving
     rigid = problem.rigid
-    out = []
-    for p in np.flatnonzero(~rigid):
-        grp = [int(p)]
-        k = 0
-        while k < len(grp):
-            grp += [int(c) for c in np.flatnonzero((s.joint_parent == grp[k]) & rigid)]
-            k += 1
-        if len(grp) > 1:
-            out.append(np.array(grp))
-    return out
+    groups = (rigid_descendants(problem.solving.joint_parent, rigid, int(p))
+              for p in np.flatnonzero(~rigid))
+    return [g for g in groups if len(g) > 1]
 
 
 def kabsch_2d(template: np.ndarray, target: np.ndarray) -> np.ndarray:

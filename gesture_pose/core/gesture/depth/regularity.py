@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...names import side_of
-from ..mrf import interior_joints
+from ..mrf import interior_joints, rigid_descendants, rigid_joints
 from ..solving import mirror_name
 from ..types import Embedding2D, SolvingSkeleton
 from .energies import LinearTerm, ViewFrame
@@ -390,18 +390,16 @@ def rigid_followers(solving: SolvingSkeleton, joint: int,
     Returns:
         Joint indices, ``joint`` excluded, shape ``(k,)``.
     """
-    par, link = np.asarray(solving.joint_parent), np.asarray(solving.joint_link_bone)
-    rigid = (link < 0) & (par >= 0)
-    if radius is not None:
-        rigid |= interior_joints(solving, np.asarray(radius, float))
-    if stop is not None:
-        rigid &= ~np.asarray(stop, bool)
-    group = [int(joint)]
-    k = 0
-    while k < len(group):
-        group += [int(c) for c in np.flatnonzero((par == group[k]) & rigid)]
-        k += 1
-    return np.asarray(group[1:], int)
+    return rigid_descendants(np.asarray(solving.joint_parent),
+                             _follower_mask(solving, radius, stop), joint)[1:]
+
+
+def _follower_mask(solving: SolvingSkeleton, radius: np.ndarray | None,
+                   stop: np.ndarray | None) -> np.ndarray:
+    """The joints :func:`rigid_followers` may collect and pass through, ``(J,)`` bool."""
+    interior = None if radius is None else interior_joints(solving, np.asarray(radius, float))
+    rigid = rigid_joints(solving, interior)
+    return rigid if stop is None else rigid & ~np.asarray(stop, bool)
 
 
 def spine_runs(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.ndarray,
@@ -445,6 +443,8 @@ def spine_runs(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.n
     on_axis = np.zeros(len(out), bool)
     on_axis[chain] = True
     world_radius = None if radius is None else np.asarray(radius, float) / frame.scale
+    par = np.asarray(solving.joint_parent)
+    followers = _follower_mask(solving, world_radius, on_axis)  # see rigid_followers
     drawn = np.diff(out[chain], axis=0)
     straight = _angle(drawn[1:], drawn[:-1]) <= max_angle
     bind = np.linalg.norm(np.diff(rest_joints[chain] @ np.stack([frame.right, frame.up], 1),
@@ -465,7 +465,7 @@ def spine_runs(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.n
             moved = np.stack([np.interp(target, arc, pts[:, 0]),
                               np.interp(target, arc, pts[:, 1])], 1)[1:-1]
             for j, p in zip(joints[1:-1], moved, strict=True):
-                follow = rigid_followers(solving, int(j), world_radius, on_axis)
+                follow = rigid_descendants(par, followers, int(j))[1:]
                 out[follow] += p - out[j]
                 out[j] = p
         start = i + 1
