@@ -681,6 +681,18 @@ class StickObjective:
 
         return np.concatenate(rs), jacobian
 
+    def pose(self, genes: np.ndarray, collision: bool) -> tuple[np.ndarray, ...]:
+        """A population posed as :meth:`evaluate` reads it, ``(P, G)``.
+
+        Returns:
+            Heads and tails ``(P, n, 3)``, with every bone when collisions are scored;
+            without them (``collision`` False) the rigid bones (fingers) are left out and
+            the frames come too (:meth:`.PoseModel.forward` with ``rigid`` False).
+        """
+        if collision is False:
+            return self.model.forward(genes, rigid=False)
+        return self.model.forward(genes)[:2]
+
     def evaluate(self, genes: np.ndarray, collision: bool = True,
                  posed: tuple[np.ndarray, ...] | None = None
                  ) -> tuple[np.ndarray, dict]:
@@ -693,8 +705,7 @@ class StickObjective:
         mass reads them (:meth:`_centre_of_mass`).
         """
         if posed is None:
-            posed = (self.model.forward(genes, rigid=False) if collision is False else
-                     self.model.forward(genes)[:2])
+            posed = self.pose(genes, collision)
         heads, tails = posed[:2]
         frames = posed[2] if len(posed) > 2 else None
         total, terms, _, _ = self.energies(heads, tails, collision, frames=frames)

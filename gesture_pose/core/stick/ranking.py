@@ -73,10 +73,7 @@ def plausibility(objective: StickObjective, genes: np.ndarray,
         ``"energy"`` and ``"foreshortening"``, each ``(P,)``.
     """
     x = np.atleast_2d(genes)
-    # Without collisions the rigid bones (fingers) are not posed (only the centre of mass
-    # reads them: StickObjective.evaluate).
-    posed = (objective.model.forward(x, rigid=False) if collision is False else
-             objective.model.forward(x)[:2])
+    posed = objective.pose(x, collision)  # posed once: evaluate reads it too
     heads, tails = posed[:2]
     energy, terms = objective.evaluate(x, collision, posed=posed)
     f = foreshortening(objective, objective.model.figure.joint_positions(heads, tails))
