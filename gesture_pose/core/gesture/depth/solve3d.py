@@ -436,12 +436,7 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
     order = [c for k, c in enumerate(order) if k not in skip]
     hard = [c for c in order if not c.soft]
     if hard:
-        rows = ordering.ordering_rows(hard, frame.forward, n_j)
-        # A hair of extra margin so that the nonlinear constraints hold, not only their
-        # linearization at the last step.
-        slack = 1e-5 * float(np.mean(lengths))
-        constraints.append(LinearConstraint(rows.matrix, rows.lower + slack, rows.upper,
-                                            rows.labels))
+        constraints.append(_order_constraint(hard, frame, n_j, lengths))
     kappa = 1.0 / max(float(np.sum(lengths**2)), 1e-12)
     setup = _Setup(jmap, frame, (a, b), lengths, ratios, terms, constraints, order, kappa,
                    triples, X_rest, joint_names, facing, agreement, embedding)
@@ -481,8 +476,20 @@ def _sided_reference(setup: _Setup, signs: np.ndarray, tails: np.ndarray,
     return replace(setup, terms=terms)
 
 
+def _order_constraint(orders: list[ordering.OrderingConstraint], frame: energies.ViewFrame,
+                      n_joints: int, lengths: np.ndarray) -> LinearConstraint:
+    """The QPs' rows of enforced depth orders (Eq. 8).
+
+    A hair of extra margin (1e-5 of the mean link length) so that the nonlinear
+    constraints hold, not only their linearization at the last step.
+    """
+    rows = ordering.ordering_rows(orders, frame.forward, n_joints)
+    slack = 1e-5 * float(np.mean(lengths))
+    return LinearConstraint(rows.matrix, rows.lower + slack, rows.upper, rows.labels)
+
+
 def _promote_met_orders(skeleton: Skeleton, setup: _Setup, start_pose: Pose,
-                        soft: np.ndarray, opts: DepthOptions) -> tuple[_Setup, np.ndarray]:
+                        opts: DepthOptions) -> _Setup:
     """Enforce the contour-read depth orders the start does not contradict (ours).
 
     An order read from the contours whose back part the start pose (its sides chosen with
@@ -495,27 +502,23 @@ def _promote_met_orders(skeleton: Skeleton, setup: _Setup, start_pose: Pose,
         skeleton: The full skeleton.
         setup: The solve's setup.
         start_pose: The start pose.
-        soft: Which of ``setup.order`` are soft, ``(k,)`` bool.
         opts: Parameters.
 
     Returns:
-        The setup with the promoted orders' rows added, and the orders still soft.
+        The setup with the promoted orders no longer ``soft`` and their rows added.
     """
     X, _ = twist.joint_positions(skeleton, setup.jmap, start_pose)
     depths = setup.frame.depth(X)
     tol = opts.contour_order_slack * float(np.mean(setup.lengths))
     gaps = np.array([c.gap(depths) for c in setup.order])
-    promote = soft & (gaps >= -tol)
+    promote = np.array([c.soft for c in setup.order], dtype=bool) & (gaps >= -tol)
     if not np.any(promote):
-        return setup, soft
+        return setup
     chosen = [replace(c, soft=False) if p else c
               for c, p in zip(setup.order, promote, strict=True)]
-    rows = ordering.ordering_rows([c for c, p in zip(chosen, promote, strict=True) if p],
-                                  setup.frame.forward, setup.jmap.n_joints)
-    slack = 1e-5 * float(np.mean(setup.lengths))
-    extra = LinearConstraint(rows.matrix, rows.lower + slack, rows.upper, rows.labels)
-    return replace(setup, order=chosen, constraints=[*setup.constraints, extra]), \
-        soft & ~promote
+    extra = _order_constraint([c for c, p in zip(chosen, promote, strict=True) if p],
+                              setup.frame, setup.jmap.n_joints, setup.lengths)
+    return replace(setup, order=chosen, constraints=[*setup.constraints, extra])
 
 
 def _keeps_enforced_orders(skeleton: Skeleton, jmap: twist.JointMap,
@@ -677,8 +680,9 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
             lifted &= ~np.asarray(pinned, bool)[setup.jmap.bones]
         setup = _sided_reference(setup, signs, tails, lifted)
     if np.any(soft):
-        setup, soft = _promote_met_orders(skeleton, setup, current, soft, opts)
-        hard = [c for c, sf in zip(setup.order, soft, strict=True) if not sf]
+        setup = _promote_met_orders(skeleton, setup, current, opts)
+        soft = np.array([c.soft for c in setup.order], dtype=bool)
+        hard = [c for c in setup.order if not c.soft]
     timings["start"] = time.perf_counter() - t1
     jm = setup.jmap
     warnings: list[str] = []
