@@ -603,11 +603,19 @@ class StickObjective:
             rs.append(sa * (joints[pin.joint] - (1 - pin.s) * joints[i] - pin.s * joints[k]))
         if w.comfort > 0:
             rs.append(self.comfort_residuals(x)[0])
+        done: list[tuple[np.ndarray, ...]] = []
+
+        def joint_jacobians() -> tuple[np.ndarray, ...]:
+            """Heads', tails', stick joints' and their images' Jacobians, computed once."""
+            if not done:
+                Jh, Jt = self.model.jacobian_at(x, state)
+                Jj = np.where(at_tail[:, None, None], Jt[bones], Jh[bones])  # (J, 3, G)
+                done.append((Jh, Jt, Jj, np.einsum("jkd,jdg->jkg", Jq, Jj)))
+            return done[0]
+
         if w.foreshortening > 0:
             # Its residuals and Jacobian come together (cheap: a few edges).
-            Jh, Jt = self.model.jacobian_at(x, state)
-            Jj = np.where(at_tail[:, None, None], Jt[bones], Jh[bones])
-            dq = np.einsum("jkd,jdg->jkg", Jq, Jj)
+            _, _, Jj, dq = joint_jacobians()
             rf, jf = self._foreshortening_jacobian(joints, Jj, q, dq)
             rs.append(np.sqrt(w.foreshortening) * rf)
         c = np.sqrt(w.collision) / (0.05 * self.height)
@@ -633,12 +641,7 @@ class StickObjective:
             rs.append(c * pen_env.ravel())
 
         def jacobian() -> np.ndarray:
-            if w.foreshortening > 0:
-                Jh_, Jt_, Jj_, dq_ = Jh, Jt, Jj, dq
-            else:
-                Jh_, Jt_ = self.model.jacobian_at(x, state)
-                Jj_ = np.where(at_tail[:, None, None], Jt_[bones], Jh_[bones])  # (J, 3, G)
-                dq_ = np.einsum("jkd,jdg->jkg", Jq, Jj_)
+            Jh_, Jt_, Jj_, dq_ = joint_jacobians()
             P = (np.eye(2) - uh[:, :, None] * uh[:, None, :]) / n[:, None, None]
             js = [sp * np.einsum("eij,ejg->eig", P, dq_[b] - dq_[a]).reshape(-1, G),
                   spp * dq_[present].reshape(-1, G) / self._px_scale]
