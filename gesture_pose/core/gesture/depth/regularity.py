@@ -302,6 +302,12 @@ def spline_term(embedding: Embedding2D, rest_joints: np.ndarray, frame: ViewFram
     return LinearTerm("spline", M, np.zeros(len(M)), np.full(len(M), weight))
 
 
+def _sided_joints(solving: SolvingSkeleton) -> np.ndarray:
+    """Joints whose bone's name has a left/right side (:func:`~...names.side_of`), ``(J,)``."""
+    return np.array([side_of(name.rpartition(" ")[0]) is not None
+                     for name in solving.joint_bones], dtype=bool)
+
+
 def spine_chain(solving: SolvingSkeleton, through_branches: bool = False) -> np.ndarray:
     """The spine's joints: from the root along unsided links, to a branch point or beyond.
 
@@ -328,8 +334,7 @@ def spine_chain(solving: SolvingSkeleton, through_branches: bool = False) -> np.
             size[jp[j]] += size[j]
     # The body's root: the root of the largest tree (a prop can be a separate tree).
     chain = [int(max(np.flatnonzero(jp < 0), key=lambda r: size[r]))] if len(jp) else []
-    sided = np.array([side_of(name.rpartition(" ")[0]) is not None
-                      for name in solving.joint_bones], dtype=bool)
+    sided = _sided_joints(solving)
     through_branches = through_branches and bool(sided.any())
     while chain:
         kids = [int(k) for k in np.flatnonzero(jp == chain[-1]) if not sided[k]]
@@ -356,8 +361,7 @@ def axial_joints(solving: SolvingSkeleton) -> np.ndarray:
     Returns:
         Shape ``(J,)`` bool.
     """
-    sided = np.array([side_of(name.rpartition(" ")[0]) is not None
-                      for name in solving.joint_bones], dtype=bool)
+    sided = _sided_joints(solving)
     if sided.any():
         return ~sided
     axial = np.zeros(solving.n_joints, bool)
