@@ -5,8 +5,9 @@ which side. The start aims every solving bone at its drawn direction, lifted by 
 amount, on the bind pose's side when the bone clearly has one (depth slope above 0.3) and
 is drawn within 45 degrees of its bind direction and near its bind image, else towards
 the character's front (its ``.L`` side is its own left), or towards the viewer when the
-front is not clear (a side view), except for a bone drawn as its parents carry it from the
-bind pose (:func:`carried_sides`); the rig's limits and the rest bend of knees and elbows
+front is not clear (a side view); the legs take that front as their pelvis carries it
+(:func:`pelvis_front_sides`), and a bone drawn as its parents carry it from the bind pose
+its bind side (:func:`carried_sides`); the rig's limits and the rest bend of knees and elbows
 decide the bones at those joints (:func:`hinge_signs`); then sides that break
 depth-order constraints are flipped greedily. When the
 drawing shows the character turned around (its left and right hips or shoulders swapped
@@ -50,14 +51,42 @@ def _first_pairs(solving: SolvingSkeleton) -> np.ndarray:
     return pairs[level == level.min()]
 
 
+def front_direction(solving: SolvingSkeleton, rest_joints: np.ndarray, frame: ViewFrame
+                    ) -> np.ndarray | None:
+    """The way the bind pose faces, ``(left - right) x up``, as a unit vector.
+
+    A rig's ``.L`` side is the character's own left: with the first joint of each of the
+    left/right pairs nearest the root (:func:`_first_pairs`) on the left, the character
+    faces ``(left - right) x up`` (``up`` the view's).
+
+    Args:
+        solving: The solving skeleton.
+        rest_joints: Bind-pose joints, world units, shape ``(J, 3)``.
+        frame: The view.
+
+    Returns:
+        The unit facing direction, world axes, ``(3,)``; None when the rig has no
+        left/right pairs or they lie along the view's up axis.
+    """
+    pairs = _first_pairs(solving)
+    if not len(pairs):
+        return None
+    sides = [side_of(solving.joint_bones[i].rpartition(" ")[0]) for i, _ in pairs]
+    left = np.array([1.0 if side == "L" else -1.0 for side in sides])
+    across = np.sum(left[:, None] * (rest_joints[pairs[:, 0]] - rest_joints[pairs[:, 1]]),
+                    axis=0)
+    front = np.cross(across, frame.up)
+    norm = float(np.linalg.norm(front))
+    return front / norm if norm > 1e-12 else None
+
+
 def bind_front(solving: SolvingSkeleton, rest_joints: np.ndarray, frame: ViewFrame,
                min_slope: float = 0.3) -> float:
     """Which way the bind pose faces along the view: -1 towards the viewer, +1 away, 0 unclear.
 
-    A rig's ``.L`` side is the character's own left, so with the first joint of each pair
-    on the left, the character faces ``(left - right) x up`` (``up`` the view's). The
-    answer is 0 when that direction is within ``asin(min_slope)`` of the view plane (a
-    side view) or the rig has no left/right pairs.
+    The facing direction is :func:`front_direction`'s; the answer is 0 when it is within
+    ``asin(min_slope)`` of the view plane (a side view) or the rig has no left/right
+    pairs.
 
     Args:
         solving: The solving skeleton.
@@ -68,18 +97,10 @@ def bind_front(solving: SolvingSkeleton, rest_joints: np.ndarray, frame: ViewFra
     Returns:
         The sign of the facing direction's depth, or 0.
     """
-    pairs = _first_pairs(solving)
-    if not len(pairs):
+    front = front_direction(solving, rest_joints, frame)
+    if front is None:
         return 0.0
-    sides = [side_of(solving.joint_bones[i].rpartition(" ")[0]) for i, _ in pairs]
-    left = np.array([1.0 if side == "L" else -1.0 for side in sides])
-    across = np.sum(left[:, None] * (rest_joints[pairs[:, 0]] - rest_joints[pairs[:, 1]]),
-                    axis=0)
-    front = np.cross(across, frame.up)
-    norm = float(np.linalg.norm(front))
-    if norm <= 1e-12:
-        return 0.0
-    slope = float(front @ frame.forward) / norm
+    slope = float(front @ frame.forward)
     return float(np.sign(slope)) if abs(slope) >= min_slope else 0.0
 
 
@@ -354,6 +375,91 @@ def carried_sides(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     return _aim_in_order(skeleton, jmap, frame, embedding, bind, signs, fixed, decide)[1]
 
 
+def limbs_below_first_pairs(solving: SolvingSkeleton) -> np.ndarray:
+    """Solving bones of the limbs hanging from the left/right pair nearest the root.
+
+    The bones whose head is a joint of :func:`_first_pairs` (a humanoid's or a
+    quadruped's thighs) and every solving bone below them (shins, feet).
+
+    Args:
+        solving: The solving skeleton.
+
+    Returns:
+        ``(m,)`` bool over the solving bones.
+    """
+    first = set(int(j) for j in _first_pairs(solving).ravel())
+    parent = np.asarray(solving.parent)
+    out = np.array([int(j) in first for j in solving.head_joint], dtype=bool)
+    for k in range(len(out)):  # parents come before their children
+        if parent[k] >= 0 and out[parent[k]]:
+            out[k] = True
+    return out
+
+
+def pelvis_front_sides(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
+                       embedding: Embedding2D, bind: Pose, signs: np.ndarray,
+                       fixed: np.ndarray, open_: np.ndarray, front: np.ndarray,
+                       min_slope: float = 0.3, min_lift: float = 0.1,
+                       max_turn: float = np.radians(150.0)) -> np.ndarray:
+    """Depth sides of leg bones from the front their parents carry (ours).
+
+    The default side of a lifted bone is the character's front (:func:`start_pose`), the
+    bind pose's facing. A body bent far forward or back turns its pelvis with it, and a
+    leg drawn foreshortened is then in front of the pelvis (hip flexion, up to 120
+    degrees) far more often than behind it (hip extension, 10-30 degrees): a body bent
+    forward with a leg stretched back points that leg away from the viewer whom its
+    front faces. Each bone in ``open_`` takes the side towards ``front`` as its parent's
+    start rotation carries it (the parent aimed first, as in :func:`lifted_pose`), when
+    that carried front leaves the view plane by at least ``min_slope`` (else it keeps its
+    side). Only bones that leave the view plane by at least ``min_lift`` of their length
+    are decided.
+
+    Args:
+        skeleton: The full skeleton.
+        jmap: Joint map of the solving skeleton.
+        frame: The view.
+        embedding: The 2D embedding.
+        bind: The bind pose the bones are aimed from (turned half round for a character
+            drawn turned around, :func:`turned_bind`).
+        signs: Depth side of each solving bone so far (+1 away from the viewer), ``(m,)``.
+        fixed: Solving bones left at their bind rotation, ``(m,)`` bool.
+        open_: Solving bones whose side this decides, ``(m,)`` bool.
+        front: The character's front in ``bind``'s rest frames, world axes, ``(3,)``
+            (:func:`front_direction`; reversed for a character drawn turned around when
+            ``bind`` is not turned).
+        min_slope: Smallest depth component of the carried unit front.
+        min_lift: Smallest depth change over length of a decided bone.
+        max_turn: Largest angle between the parent's direction in ``bind`` and in the
+            start for its carried front to count, radians: a bone aimed nearly backwards
+            turns about an axis its aim does not fix (a figure drawn upside down).
+
+    Returns:
+        The sides, ``(m,)``.
+    """
+    solving = set(int(b) for b in jmap.bones)
+    front = np.asarray(front, float)
+    bind_state = skeleton.forward(bind)
+
+    def decide(k: int, bone: int, sides: np.ndarray, depth: float, state: PoseState,
+               pose: Pose) -> float | None:
+        parent = int(skeleton.parents[bone])
+        if not open_[k] or parent not in solving or depth < min_lift * skeleton.lengths[bone]:
+            return None
+        before = bind_state.tails[parent] - bind_state.heads[parent]
+        now = state.tails[parent] - state.heads[parent]
+        cos = float(before @ now) / max(float(np.linalg.norm(before) * np.linalg.norm(now)),
+                                        1e-12)
+        if cos < np.cos(max_turn):
+            return None  # aimed nearly backwards: the aim's axis, hence the front, is a guess
+        carried = state.frames[parent] @ skeleton.rest_frames[parent].T @ front
+        slope = float(carried @ frame.forward)
+        if abs(slope) < min_slope:
+            return None
+        return 1.0 if slope > 0 else -1.0
+
+    return _aim_in_order(skeleton, jmap, frame, embedding, bind, signs, fixed, decide)[1]
+
+
 def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                 embedding: Embedding2D, bind: Pose, signs: np.ndarray, fixed: np.ndarray,
                 ik_limits: np.ndarray | None = None, natural_bend: bool = True,
@@ -475,7 +581,8 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                keep: np.ndarray | None = None, ik_limits: np.ndarray | None = None,
                natural_bend: bool = False, limit_axes: np.ndarray | None = None,
                agreement: np.ndarray | None = None, min_agreement: float = 0.1,
-               carried_turn: float = 0.0, turn: bool = False) -> tuple[Pose, np.ndarray]:
+               carried_turn: float = 0.0, turn: bool = False,
+               pelvis_front: float = 0.0) -> tuple[Pose, np.ndarray]:
     """The lifted start pose and the depth side of each solving bone.
 
     Args:
@@ -508,6 +615,10 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
             to the default.
         turn: For a character drawn turned around, aim the bones from the bind pose
             turned half round (:func:`turned_bind`).
+        pelvis_front: The legs (:func:`limbs_below_first_pairs`) whose side is still a
+            guess take the front their parents carry when it leaves the view plane by
+            at least this much (:func:`pelvis_front_sides`); 0 leaves them to the
+            default.
 
     Returns:
         ``(pose, signs)``: the start pose and the sides, ``(m,)``.
@@ -532,8 +643,16 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     if agreement is not None:
         kept &= np.asarray(agreement, float) >= min_agreement
     signs = np.where(kept, facing * np.sign(bind_slope), default)
-    if facing < 0 and turn:
+    turned = facing < 0 and turn
+    if turned:
         bind = turned_bind(skeleton, jm, f, bind, fixed)
+    facing_dir = front_direction(sk, sk.rest_joints, f) if pelvis_front > 0.0 else None
+    if facing_dir is not None:
+        # The turned bind pose carries the front round with it; the unturned one does not.
+        signs = pelvis_front_sides(skeleton, jm, f, embedding, bind, signs, fixed,
+                                   ~kept & limbs_below_first_pairs(sk),
+                                   facing_dir if turned else facing * facing_dir,
+                                   pelvis_front)
     if carried_turn > 0.0:
         signs = carried_sides(skeleton, jm, f, embedding, bind, signs, fixed, ~kept,
                               carried_turn)
