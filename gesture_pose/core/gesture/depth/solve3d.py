@@ -35,7 +35,8 @@ Bone lengths are exact throughout (joint positions always come from forward kine
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections import Counter
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -572,6 +573,24 @@ def _keeps_enforced_orders(skeleton: Skeleton, jmap: twist.JointMap,
     return keeps_order
 
 
+def _listed(orders: Iterable[ordering.OrderingConstraint]) -> str:
+    """The labels of depth orders for a warning, each once, with its count when repeated.
+
+    Several orders can share a label (two occlusion points of the same pair of bones, or
+    T-junctions between the same bones): the warnings count orders, so a repeated label
+    says how many of the counted orders it stands for (the counts add up to the number
+    the warning gives).
+
+    Args:
+        orders: The orders named by the warning.
+
+    Returns:
+        ``"label, other label (2x)"``, sorted by label.
+    """
+    counts = Counter(c.label for c in orders)
+    return ", ".join(f"{lab} ({n}x)" if n > 1 else lab for lab, n in sorted(counts.items()))
+
+
 def _violation(constraints: list[LinearConstraint], X: np.ndarray) -> float:
     """Summed violation of the joint-space constraints at ``X``, world units."""
     return float(sum(np.sum(c.violation(X)) for c in constraints))
@@ -647,9 +666,8 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     # drawn. Solve again without them.
     again = _solve(*args, skip=frozenset(int(k) for k in unmet))
     timings = {k: v + result.timings.get(k, 0.0) for k, v in again.timings.items()}
-    labels = sorted({result.ordering[k].label for k in unmet})
     note = (f"{len(unmet)} depth-order constraint(s) contradicted the drawing and were "
-            f"dropped: {', '.join(labels)}.")
+            f"dropped: {_listed(result.ordering[k] for k in unmet)}.")
     return replace(again, timings=timings, warnings=(note, *again.warnings))
 
 
@@ -781,13 +799,12 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
     X, _ = twist.joint_positions(skeleton, jm, current)
     depths = setup.frame.depth(X)
     ok = ordering.violations(setup.order, depths) <= 1e-4 * mean_len
-    if not np.all(ok | soft):
-        warnings.append(f"{int(np.sum(~ok & ~soft))} depth-order constraint(s) are not met.")
-    if np.any(~ok & soft):
-        labels = sorted({c.label for c, k in zip(setup.order, ~ok & soft, strict=True) if k})
-        warnings.append(f"{int(np.sum(~ok & soft))} depth order(s) read from the contours "
-                        f"contradict the lifted drawing and were not enforced: "
-                        f"{', '.join(labels)}.")
+    for unmet, text in ((~ok & ~soft, "depth-order constraint(s) are not met"),
+                        (~ok & soft, "depth order(s) read from the contours contradict the "
+                                     "lifted drawing and were not enforced")):
+        if np.any(unmet):
+            listed = _listed(c for c, k in zip(setup.order, unmet, strict=True) if k)
+            warnings.append(f"{int(np.sum(unmet))} {text}: {listed}.")
     equalities = tuple(lab for c in setup.all_constraints(X) for lab, lo, hi in
                        zip(c.labels, c.lower, c.upper, strict=True) if lo == hi)
     energy = {t.name: t.value(X) for t in setup.terms}
