@@ -253,8 +253,7 @@ def finish_pose(objective: StickObjective, x: np.ndarray, bounds: np.ndarray,
     for pin in limb_pins:
         heads, tails, _ = model.forward(x[None])
         J = fig.joint_positions(heads, tails)[0]
-        a, b = pin.limb
-        target = (1 - pin.s) * J[a] + pin.s * J[b]
+        target = pin.target(J)
         genes = _chain_genes(model, pin.joint)
         if genes.size:
             x, res = place_joints(objective, x, bounds, np.array([pin.joint]), target[None],
@@ -263,7 +262,7 @@ def finish_pose(objective: StickObjective, x: np.ndarray, bounds: np.ndarray,
                 genes = np.union1d(genes, _spine_genes(model))
                 heads, tails, _ = model.forward(x[None])
                 J = fig.joint_positions(heads, tails)[0]
-                target = (1 - pin.s) * J[a] + pin.s * J[b]
+                target = pin.target(J)
                 x, res = place_joints(objective, x, bounds, np.array([pin.joint]),
                                       target[None], genes)
             if res.max() > 1e-6 and env_pins:
@@ -299,15 +298,14 @@ def _reach_with_body(objective: StickObjective, x: np.ndarray, bounds: np.ndarra
     joints = np.array([pin.joint] + [p.joint for p in env_pins])
     more = np.unique(np.concatenate([genes, np.arange(N_ROOT_GENES)] +
                                     [_chain_genes(model, p.joint) for p in env_pins]))
-    a, b = pin.limb
     for _ in range(rounds):
         heads, tails, _ = model.forward(x[None])
         J = fig.joint_positions(heads, tails)[0]
-        target = (1 - pin.s) * J[a] + pin.s * J[b]
+        target = pin.target(J)
         x, res = place_joints(objective, x, bounds, joints,
                               np.array([target] + [p.target for p in env_pins]), more)
         heads, tails, _ = model.forward(x[None])
         J = fig.joint_positions(heads, tails)[0]
-        if np.linalg.norm(J[pin.joint] - (1 - pin.s) * J[a] - pin.s * J[b]) < 1e-6:
+        if np.linalg.norm(J[pin.joint] - pin.target(J)) < 1e-6:
             break
     return x

@@ -84,6 +84,24 @@ class LimbPin:
     limb: tuple[int, int]
     s: float
 
+    def target(self, joints: np.ndarray, axis: int = -2) -> np.ndarray:
+        """The point of the edge the joint is attached to (Eq. 9): ``(1 - s) a + s b``.
+
+        The one place the pin's target is computed: the attachment energy, its
+        residuals and their Jacobian, the finish and the residual reports call it.
+
+        Args:
+            joints: Stick joint positions (world units) or their Jacobians, indexed by
+                joint along ``axis``: ``(J, 3)``, ``(P, J, 3)``, or ``(J, 3, G)`` with
+                ``axis=0``.
+            axis: The joint axis of ``joints``.
+
+        Returns:
+            ``joints`` without its joint axis: ``(3,)``, ``(P, 3)`` or ``(3, G)``.
+        """
+        a, b = self.limb
+        return (1 - self.s) * np.take(joints, a, axis) + self.s * np.take(joints, b, axis)
+
 
 @dataclass(frozen=True)
 class Weights:
@@ -310,8 +328,7 @@ class StickObjective:
                 g[:, pin.joint] += 2.0 * dist[:, None] * pin.normal / h2
         for pin in self.limb_pins:
             a, b = pin.limb
-            target = (1 - pin.s) * joints[:, a] + pin.s * joints[:, b]
-            d = joints[:, pin.joint] - target
+            d = joints[:, pin.joint] - pin.target(joints)
             energy += np.sum(d**2, 1) / h2
             if grad:
                 g[:, pin.joint] += 2 * d / h2
@@ -502,8 +519,7 @@ class StickObjective:
             dist = (joints[:, pin.joint] - pin.target) @ pin.normal
             out.append(np.sqrt(w.attachment) * dist[:, None] / self.height)
         for pin in self.limb_pins:
-            i, k = pin.limb
-            d = joints[:, pin.joint] - (1 - pin.s) * joints[:, i] - pin.s * joints[:, k]
+            d = joints[:, pin.joint] - pin.target(joints)
             out.append(np.sqrt(w.attachment) * d / self.height)
         if w.comfort > 0:
             out.append(self.comfort_residuals(genes))
@@ -599,8 +615,7 @@ class StickObjective:
         for pin in self.env_pins:
             rs.append(sa * np.atleast_1d((joints[pin.joint] - pin.target) @ pin.normal))
         for pin in self.limb_pins:
-            i, k = pin.limb
-            rs.append(sa * (joints[pin.joint] - (1 - pin.s) * joints[i] - pin.s * joints[k]))
+            rs.append(sa * (joints[pin.joint] - pin.target(joints)))
         if w.comfort > 0:
             rs.append(self.comfort_residuals(x)[0])
         done: list[tuple[np.ndarray, ...]] = []
@@ -652,8 +667,7 @@ class StickObjective:
             for pin in self.env_pins:
                 js.append(sa * (pin.normal @ Jj_[pin.joint])[None])
             for pin in self.limb_pins:
-                i, k = pin.limb
-                js.append(sa * (Jj_[pin.joint] - (1 - pin.s) * Jj_[i] - pin.s * Jj_[k]))
+                js.append(sa * (Jj_[pin.joint] - pin.target(Jj_, axis=0)))
             if w.comfort > 0:
                 js.append(np.eye(G)[N_ROOT_GENES:] * self._comfort_scale[:, None])
             if w.foreshortening > 0:

@@ -646,8 +646,7 @@ def _suggestion(objective: StickObjective, x: np.ndarray, env_pins, score: float
     _, rank_terms = plausibility(objective, x[None], weights)
     joints = model.figure.joint_positions(heads, tails)[0]
     res = np.array([np.linalg.norm(joints[p.joint] - p.target) for p in env_pins]
-                   + [np.linalg.norm(joints[p.joint] - (1.0 - p.s) * joints[p.limb[0]]
-                                     - p.s * joints[p.limb[1]])
+                   + [np.linalg.norm(joints[p.joint] - p.target(joints))
                       for p in objective.limb_pins])
     terms = {k: float(v[0]) for k, v in terms.items()}
     terms["foreshortening"] = float(rank_terms["foreshortening"][0])
