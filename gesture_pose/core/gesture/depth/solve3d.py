@@ -216,7 +216,7 @@ class DepthOptions:
             6.75); the 25 traced drawings (cached 2D fits) unchanged at 7.01. A parent
             turned more than 150 degrees from its bind direction decides nothing (its
             aim's axis, hence the carried front, is a guess): without that limit the
-            CMU frame 31, a cartwheel whose pelvis link is turned 152 degrees, went
+            CMU frame 31, a pose with its pelvis upside down (its link turned 152 degrees), went
             from 7.27 to 10.8 (mean 6.02); 150 degrees is set from these poses (the
             three it helps turn theirs 113-141 degrees).
         arm_bend: With ``natural_bend``, start the elbows bent as at rest too (off, ours:
