@@ -2,19 +2,19 @@
 
 A drawn link fixes how much a bone leaves the view plane, ``sqrt(l^2 - l_2d^2)``, not to
 which side. The start aims every solving bone at its drawn direction, lifted by that
-amount, on the bind pose's side when the bone clearly has one (depth slope above 0.3) and
-is drawn within 45 degrees of its bind direction and near its bind image, else towards
-the character's front (its ``.L`` side is its own left), or towards the viewer when the
-front is not clear (a side view); the legs take that front as their pelvis carries it
-(:func:`pelvis_front_sides`), and a bone drawn as its parents carry it from the bind pose
-its bind side (:func:`carried_sides`); the rig's limits and the rest bend of knees and elbows
-decide the bones at those joints (:func:`hinge_signs`); then sides that break
-depth-order constraints are flipped greedily. When the
-drawing shows the character turned around (its left and right hips or shoulders swapped
-in the image, :func:`drawn_facing`), the bind pose's sides and its front are reversed
-and the bones are aimed from the bind pose turned half round (:func:`turned_bind`).
-Through a perspective camera each tail is put on its pixel's view ray
-(:func:`side_directions`).
+amount, on the bind pose's side when the bone clearly has one (depth slope above 0.3)
+and is drawn within 45 degrees of its bind direction and near its bind image, else
+towards the character's front (its ``.L`` side is its own left), or towards the viewer
+when the front is not clear (a side view); the legs take that front as their pelvis
+carries it (:func:`pelvis_front_sides`), and a bone drawn as its parents carry it from
+the bind pose takes its bind side (:func:`carried_sides`); the rig's limits and the rest
+bend of the knees (of elbows too on request) decide the bones at those joints
+(:func:`hinge_signs`); then sides that break depth-order constraints are flipped
+greedily. When the drawing shows the character turned around (its left and right hips or
+shoulders swapped in the image, :func:`drawn_facing`), the bind pose's sides and its
+front are reversed and the bones are aimed from the bind pose turned half round
+(:func:`turned_bind`). Through a perspective camera each tail is put on its pixel's view
+ray (:func:`side_directions`).
 
 Starting lifted matters: from a flat pose the linearized projection cannot shorten a bone
 (the depth direction is a saddle), so the SQP alone would never leave the view plane.
