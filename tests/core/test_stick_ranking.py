@@ -13,7 +13,7 @@ from gesture_pose.core.stick.figure import humanoid_figure
 from gesture_pose.core.stick.genetic import GAConfig
 from gesture_pose.core.stick.graph import StickFigure
 from gesture_pose.core.stick.kinematics import PoseModel
-from gesture_pose.core.stick.lifting import depth_flips
+from gesture_pose.core.stick.lifting import depth_flips, limb_flips
 from gesture_pose.core.stick.objective import StickObjective, Weights
 from gesture_pose.core.stick.ranking import foreshortening, plausibility
 from gesture_pose.core.stick.solve import StickInput, solve_stick
@@ -139,6 +139,44 @@ def test_depth_flip_against_the_joint_limits_ranks_below_the_drawn_pose():
     assert score[flip] > score[drawn] + 1e-3
     assert (terms["projection"][flip] > terms["projection"][drawn] + 1e-3 or
             terms["comfort"][flip] > terms["comfort"][drawn] + 0.1)
+
+
+def test_limb_flips_turn_one_limb_or_its_end_in_depth_and_keep_the_rest():
+    model = _model()
+    fig = model.figure
+    # Both arms and the left leg bent out of the view plane; the right leg straight.
+    x = _pose(model, {"upper_arm.L": [40, 0, 20], "forearm.L": [70],
+                      "upper_arm.R": [-30, 10, 0], "forearm.R": [50],
+                      "thigh.L": [50, 0, 0], "shin.L": [60]})
+    stick, truth = _drawn(model, x)
+    bounds = model.bounds(np.zeros(3), 0.3)
+    flips = limb_flips(model, x, bounds, stick, CAMERA)
+    # Per limb (upper arm, forearm, thigh, shin per side): the whole limb, its end bone.
+    assert flips.shape == (8, model.n_genes)
+    heads, tails, _ = model.forward(flips)
+    joints = fig.joint_positions(heads, tails)
+    moved = np.linalg.norm(joints - truth, axis=-1) > 1e-9  # (8, J)
+    rows = {0: ("upper_arm.L", "elbow.L"), 1: ("forearm.L", "wrist.L"),
+            2: ("thigh.L", "knee.L"), 3: ("shin.L", "ankle.L"),
+            4: ("upper_arm.R", "elbow.R"), 5: ("forearm.R", "wrist.R")}
+    for row, (group, end) in rows.items():
+        bone = fig.groups[[g.name for g in fig.groups].index(group)].bones[0]
+        below = set(model.skeleton.descendants(int(bone)))
+        # Only the flipped bone's genes and those of the bones it carries change...
+        changed = {g.name for g in fig.groups
+                   if np.any(flips[row, model.genes_of(g.name)] != x[model.genes_of(g.name)])}
+        assert group in changed and all(int(fig.groups[[g.name for g in fig.groups].index(
+            c)].bones[0]) in below for c in changed), (group, changed)
+        assert np.array_equal(flips[row, :6], x[:6])
+        # ... so only the joints below it move, and its end changes depth: a whole limb
+        # turns to the other side of the eye ray (more than 15 cm); a hinge, which bends
+        # one way only, swings a forearm or shin by a few centimetres towards it.
+        assert all(int(fig.joint_bones[j]) in below for j in np.flatnonzero(moved[row]))
+        e = fig.joint(end)
+        dz = abs(CAMERA.depth(joints[row, e][None])[0] - CAMERA.depth(truth[e][None])[0])
+        assert dz > (0.15 if row % 2 == 0 else 0.02), (group, dz)
+    # The forearm's flip keeps the elbow where it was; the whole arm's moves it.
+    assert not moved[1, fig.joint("elbow.L")] and moved[0, fig.joint("elbow.L")]
 
 
 def test_foreshortening_term_in_the_objective_matches_finite_differences():

@@ -103,16 +103,62 @@ def depth_flips(model: PoseModel, x: np.ndarray, bounds: np.ndarray, stick: Stic
     if not groups:
         return np.asarray(x, float)[None].copy()
     k = min(max_bones, len(groups))
-    heads, tails, _ = model.forward(np.asarray(x, float)[None])
-    o, d = camera.rays(stick.points[[j for _, _, j, _ in groups]])
-    # The current choice of each bone: is its end beyond the ray's closest approach?
-    bones = [int(model.figure.groups[gi].bones[0]) for gi, *_ in groups]
-    far_now = np.einsum("kd,kd->k", tails[0, bones] - heads[0, bones], d) > 0
+    far_now = _far_sides(model, x, stick, camera, groups)
     n = 2**k
     bits = np.broadcast_to(far_now, (n, len(groups))).copy()
     bits[:, :k] = ((np.arange(n)[:, None] >> np.arange(k)[None]) & 1).astype(bool)
     X = np.repeat(np.asarray(x, float)[None], n, 0)
     return _lift(model, X, bounds, stick, camera, groups, bits)
+
+
+def _far_sides(model: PoseModel, x: np.ndarray, stick: StickFigure, camera: Camera,
+               groups: list) -> np.ndarray:
+    """Whether each lifted bone of pose ``x`` ends on the far side, ``(len(groups),)``.
+
+    Far: its end lies beyond the closest approach of the eye ray through its drawn end
+    to its posed start.
+    """
+    heads, tails, _ = model.forward(np.asarray(x, float)[None])
+    _, d = camera.rays(stick.points[[j for _, _, j, _ in groups]])
+    bones = [int(model.figure.groups[gi].bones[0]) for gi, *_ in groups]
+    return np.einsum("kd,kd->k", tails[0, bones] - heads[0, bones], d) > 0
+
+
+def limb_flips(model: PoseModel, x: np.ndarray, bounds: np.ndarray, stick: StickFigure,
+               camera: Camera) -> np.ndarray:
+    """The depth interpretations one limb away from pose ``x``: a local move.
+
+    Each liftable bone is flipped to the other side of the sphere of its length together
+    with the lifted bones it carries: a forearm or a shin alone (pointing away from the
+    eye instead of towards it, the elbow or knee kept), a whole arm or leg about its
+    shoulder or hip. The flipped bones are aimed as in :func:`depth_flips` (whose full
+    enumeration includes these, but re-aims every limb and is screened before it is
+    refined); every other gene keeps its value.
+
+    Args:
+        model: Genes -> bones.
+        x: The pose, shape ``(G,)``.
+        bounds: Gene bounds, shape ``(G, 2)``.
+        stick: The drawing.
+        camera: The view it was drawn in.
+
+    Returns:
+        One gene vector per liftable bone, shape ``(k, G)`` (``(0, G)`` when none).
+    """
+    x = np.asarray(x, float)
+    groups = _lifted_groups(model, stick)
+    if not groups:
+        return np.zeros((0, x.size))
+    sk = model.skeleton
+    bones = [int(model.figure.groups[gi].bones[0]) for gi, *_ in groups]
+    far = _far_sides(model, x, stick, camera, groups)
+    out = []
+    for b in bones:
+        # Bone b and the lifted bones below it are aimed again, the others not touched.
+        sel = [i for i, c in enumerate(bones) if b in sk.ancestors(c)]
+        out.append(_lift(model, x[None], bounds, stick, camera, [groups[i] for i in sel],
+                         ~far[sel][None])[0])
+    return np.array(out)
 
 
 def _frame(e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
