@@ -6,6 +6,11 @@ is kept when it deforms and is at least ``min_bone_epsilons`` resampling steps l
 the step measured on the rest skeleton the way the drawing's step is measured on the
 drawing (2% of the bounding-box diagonal). A bone collection named "Gesture" overrides the
 automatic choice.
+
+Joints where the drawn shape ends (end caps, for the unary cost) are the joints of degree
+one, unless the shape goes on past them: a tail continued by excluded bones (a hand by its
+fingers), or a root whose single child carries branches reaching beyond it (the legs below
+a pelvis bone that starts at the crotch, :func:`branches_past_root`).
 """
 
 from __future__ import annotations
@@ -113,10 +118,62 @@ def build_solving_skeleton(skeleton: Skeleton, mask: np.ndarray) -> SolvingSkele
             anc = skeleton.parents[anc]
         if anc >= 0:
             extends[tail[position[anc]]] = True
+    jparent_arr, rest_arr = np.array(jparent, int), np.array(rest)
+    extends |= branches_past_root(jparent_arr, np.array(jlink, int), rest_arr)
     return SolvingSkeleton(bones=bones, parent=parent, head_joint=head, tail_joint=tail,
-                           joint_bones=tuple(names), joint_parent=np.array(jparent, int),
-                           joint_link_bone=np.array(jlink, int), rest_joints=np.array(rest),
+                           joint_bones=tuple(names), joint_parent=jparent_arr,
+                           joint_link_bone=np.array(jlink, int), rest_joints=rest_arr,
                            excluded=excluded, extends=extends)
+
+
+def branches_past_root(joint_parent: np.ndarray, joint_link_bone: np.ndarray,
+                       rest_joints: np.ndarray) -> np.ndarray:
+    """Roots the drawn shape goes on past, though they have a single child, ``(J,)`` bool.
+
+    A root joint with one child joint ends its chain, and the unary cost takes such an end
+    for an end cap (Section 5's terminal joints). That is wrong when the child carries
+    branches hung by rigid offsets that reach beyond the root: a pelvis bone running from
+    the crotch up to the spine with the legs hanging from its top (the Quaternius rigs read
+    as joint skeletons: the Adventurer's ``Hips`` head lies 7 cm below its hip joints and
+    the legs go on 0.9 m below it). There the root sits inside the body and is continued
+    like a hand tail followed by fingers. A branch reaches beyond the root when one of its
+    joints lies farther past the root, along the child-to-root direction, than the root's
+    bone is long.
+
+    Args:
+        joint_parent: Parent joint of each joint, -1 for roots, ``(J,)`` int.
+        joint_link_bone: Solving bone linking each joint to its parent, -1 for a rigid
+            offset, ``(J,)`` int.
+        rest_joints: Rest positions of the joints, ``(J, 3)``, world units.
+
+    Returns:
+        Roots continued past by such a branch, ``(J,)`` bool.
+    """
+    out = np.zeros(len(joint_parent), dtype=bool)
+    for r in np.flatnonzero(joint_parent < 0):
+        kids = np.flatnonzero(joint_parent == r)
+        if len(kids) != 1:
+            continue
+        c = int(kids[0])
+        axis = rest_joints[r] - rest_joints[c]
+        length = float(np.linalg.norm(axis))
+        if length <= 0.0:
+            continue
+        hung = np.flatnonzero((joint_parent == c) & (joint_link_bone < 0))
+        members = _subtree(joint_parent, hung)
+        past = (rest_joints[members] - rest_joints[r]) @ (axis / length)
+        out[r] = bool(members.size) and float(past.max()) > length
+    return out
+
+
+def _subtree(joint_parent: np.ndarray, tops: np.ndarray) -> np.ndarray:
+    """The joints ``tops`` and all their descendants in the joint tree, ``(k,)`` int."""
+    inside = np.zeros(len(joint_parent), dtype=bool)
+    inside[tops] = True
+    for j in range(len(joint_parent)):  # parents come before their children
+        if joint_parent[j] >= 0 and inside[joint_parent[j]]:
+            inside[j] = True
+    return np.flatnonzero(inside)
 
 
 def solving_skeleton(skeleton: Skeleton, override: np.ndarray | None = None,
