@@ -353,3 +353,63 @@ def test_coverage_moves_keep_the_best_solve_the_rule_accepts(monkeypatch):
     out, solves = embedding._coverage_moves(None, None, np.array([1]), [], [], conf, start,
                                             GestureParams(), {})
     assert solves == 2 and out.positions[1, 0] == 2.0
+
+
+def test_limb_resolves_unfold_a_limb_the_search_left_folded():
+    """A forearm laid back along the upper arm (the wrist at the shoulder's side, as the
+    coarse pass can leave it) is re-solved with the shoulder held: the elbow and the wrist
+    go to the arc's centre and the cap; a solution already there is left as it is. The
+    character's current pose is the drawn one (the naturalness term's reference angle is
+    the drawn bend; against the straight bind pose a forearm shrunk onto the elbow scores
+    lower than the drawn one, 1.46 against 1.52, with these single radii)."""
+    cam, skel, pixels, _, truth = _arm_case()
+    d = preprocess([Stroke(pixels)])
+    sol = solving_skeleton(skel)
+    ppu = cam.pixels_per_unit(6.0)
+    problem = make_problem(d, sol, ppu, truth)
+    params = GestureParams()
+    r = R * ppu
+    contour = [contour_candidates(d, np.array([r]), bool(problem.terminal[j]), problem.params,
+                                  params.pool_candidates) for j in range(sol.n_joints)]
+    elbow, wrist = sol.joint_bones.index("b0 tail"), sol.joint_bones.index("b1 tail")
+    n = sol.n_joints
+
+    def conf_at(pos):
+        return JointCandidates(pos, np.full(n, r), np.zeros(n, int), -np.ones(n, int),
+                               -np.ones(n, int), np.zeros(n), -np.ones((n, 48), int))
+
+    folded = truth.copy()
+    folded[wrist] = truth[0] + 0.3 * (truth[1] - truth[0])
+    mid_r = np.full(n, r)
+    out, kept = embedding._limb_resolves(problem, problem, contour, mid_r, conf_at(folded),
+                                         params, {})
+    assert kept == 1
+    eps = d.epsilon
+    assert np.linalg.norm(out.positions[elbow] - truth[1]) < 1.5 * eps
+    assert np.linalg.norm(out.positions[wrist] - truth[2]) < 1.5 * eps
+    assert np.array_equal(out.positions[0], folded[0])  # the rest of the solution is held
+    assert joint_energy(problem, out)[0] < joint_energy(problem, conf_at(folded))[0]
+    # From the re-solved limb nothing better is found: nothing changes.
+    again, kept = embedding._limb_resolves(problem, problem, contour, mid_r, out, params, {})
+    assert kept == 0 and np.array_equal(again.positions, out.positions)
+    # Off, the folded limb stays.
+    off = replace(params, limb_resolves=0)
+    same, kept = embedding._limb_resolves(problem, problem, contour, mid_r, conf_at(folded),
+                                          off, {})
+    assert kept == 0 and np.array_equal(same.positions, folded)
+
+
+def test_a_limb_re_solve_is_kept_for_a_lower_penalized_energy_at_no_less_coverage():
+    params = GestureParams()  # overlap_penalty 10, coverage_gain 0.02
+
+    def sol(n_overlaps, coverage, energy):
+        return SimpleNamespace(overlaps=[(0, 1)] * n_overlaps, coverage=coverage), energy
+
+    assert embedding._limb_accepts(sol(0, 0.80, 4.0), sol(0, 0.80, 4.5), params)
+    assert not embedding._limb_accepts(sol(0, 0.80, 4.5), sol(0, 0.80, 4.5), params)
+    # Less coverage for a lower energy is not taken (a limb left off its drawn contours).
+    assert not embedding._limb_accepts(sol(0, 0.79, 4.0), sol(0, 0.80, 4.5), params)
+    # One overlap fewer pays for more E_match, and for a little coverage, not for much.
+    assert embedding._limb_accepts(sol(1, 0.79, 9.0), sol(2, 0.80, 4.5), params)
+    assert not embedding._limb_accepts(sol(1, 0.75, 9.0), sol(2, 0.80, 4.5), params)
+    assert not embedding._limb_accepts(sol(1, 0.80, 15.0), sol(2, 0.80, 4.5), params)
