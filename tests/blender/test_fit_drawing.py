@@ -55,7 +55,7 @@ def _trace(arm, target="Traced Contours", **kwargs):
 #   rest            0.33    0.33  0.91  100% (refined from the pose, see below)
 #   step            2.55    2.51  5.14  80%  (the pelvis group 24 px high, 4.0; the right
 #                                            elbow 5.1; the left toe 4.07)
-#   raise_left_arm  1.10    1.48  3.80  100%
+#   raise_left_arm  1.14    1.27  2.95  100%  (3.80 before the limb re-solves, docs/gesture.md)
 #   reach           1.27    1.51  3.96  100%
 #   crouch          1.88    3.22  16.2  76%  (thighs pointing at the viewer, drawn at a
 #                                            third of their length: knees 8.6-16, the right
