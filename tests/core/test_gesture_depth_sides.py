@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from gesture_pose.core.camera import Camera
 from gesture_pose.core.gesture.depth import DepthOptions, energies, solve_pose3d, start, twist
 from gesture_pose.core.gesture.depth.synthetic import project_embedding, solving_skeleton
 from gesture_pose.core.gesture.embedding import posed_joints
 from gesture_pose.core.rotations import exp_map
 from gesture_pose.core.skeleton import Pose, Skeleton
-from tests.core.fixtures import frame_along, front_camera, turned_about_x
+from tests.core.fixtures import frame_along, front_camera, tree_skeleton, turned_about_x
 
 FORWARD = np.array([0.0, 1.0, 0.0])  # front_camera's depth axis (away from the viewer)
 
@@ -43,10 +44,39 @@ def _arabesque(sk: Skeleton) -> Pose:
 
 def test_the_legs_are_the_limbs_below_the_hips():
     s = solving_skeleton(_legged_figure())
-    legs = start.limbs_below_first_pairs(s)
+    legs = start.leg_bones(s)
     sk = _legged_figure()
     assert {sk.names[b] for b, leg in zip(s.bones, legs, strict=True) if leg} == {
         "thigh.L", "thigh.R", "shin.L", "shin.R"}
+    thighs = start.thigh_bones(s)
+    assert {sk.names[b] for b, t in zip(s.bones, thighs, strict=True) if t} == {
+        "thigh.L", "thigh.R"}
+    # With arms too, the hips are still the pair the legs hang from, not the shoulders.
+    arms = _figure_with_arms()
+    s2 = solving_skeleton(arms)
+    legs2 = start.leg_bones(s2)
+    assert {arms.names[b] for b, leg in zip(s2.bones, legs2, strict=True) if leg} == {
+        f"{n}.{side}" for n in ("thigh", "shin", "foot") for side in "LR"}
+
+
+def test_a_bust_has_no_legs():
+    """The tree skeleton's only pair, its arms, hangs from the top of its axis (z 1.0 and
+    1.05 against the root's 0 to the neck's 1.5): a bust. By tree depth alone (the pair
+    nearest the root) the arms would take the legs' rules; they take none."""
+    sk = tree_skeleton()
+    s = solving_skeleton(sk)
+    assert len(start._first_pairs(s))  # the arms are the pair nearest the root
+    assert len(start.leg_pairs(s)) == 0
+    assert not start.leg_bones(s).any()
+    assert not start.thigh_bones(s).any()
+    # The same arms turned to hang from the bottom of the axis are legs.
+    low = Skeleton(names=sk.names, parents=sk.parents,
+                   rest_heads=sk.rest_heads * [1, 1, -1], rest_tails=sk.rest_tails * [1, 1, -1],
+                   rest_frames=sk.rest_frames, inherit_rotation=sk.inherit_rotation,
+                   connected=sk.connected, deform=sk.deform)
+    s_low = solving_skeleton(low)
+    assert {low.names[b] for b, leg in zip(s_low.bones, start.leg_bones(s_low), strict=True)
+            if leg} == {"arm.L", "fore.L", "arm.R", "fore.R"}
 
 
 def test_a_leg_stretched_back_under_a_body_folded_forward_starts_behind_it():
@@ -77,12 +107,14 @@ def test_a_leg_stretched_back_under_a_body_folded_forward_starts_behind_it():
     assert off[leg_joints].max() < 1e-3
 
 
-def _figure_with_arms() -> Skeleton:
+def _figure_with_arms(elbows_back: bool = False) -> Skeleton:
     """A pelvis, a spine, legs (thigh, shin, foot) from hip joints beside the pelvis's
     head and arms (upper arm, forearm, hand) from shoulder joints beside the spine's
     tail, facing the front camera. Knees and elbows are bent 6 degrees at rest, as
-    they bend: the shins back, the forearms forward (towards the viewer, -y)."""
-    back, fwd = np.array([0.0, 0.05, 0.0]), np.array([0.0, -0.05, 0.0])
+    they bend: the shins back, the forearms forward (towards the viewer, -y; back with
+    ``elbows_back``)."""
+    back = np.array([0.0, 0.05, 0.0])
+    fwd = back if elbows_back else -back
     heads, tails, parents, names, connected = [], [], [], [], []
 
     def add(name, head, tail, parent, conn):
@@ -189,3 +221,178 @@ def test_a_limb_swung_towards_the_viewer_keeps_part_of_its_drawn_depth():
     assert mean < 0.75 * mean0
     assert tip_err < 0.75 * tip0
     assert errors(1.0)[0] < 0.5 * mean0
+
+
+def _leg_depth(sk: Skeleton, pose: Pose, cam: Camera, name: str,
+               options: DepthOptions | None = None) -> tuple[float, float]:
+    """Bone ``name``'s depth change as solved and as posed (m, +y away from the viewer)."""
+    s = solving_skeleton(sk)
+    k = [sk.names[b] for b in s.bones].index(name)
+    emb = project_embedding(sk, s, pose, cam)
+    truth = posed_joints(s, sk, pose)
+    X = solve_pose3d(sk, emb, cam, options=options).joints3d
+    h, t = s.head_joint[k], s.tail_joint[k]
+    return float((X[t] - X[h]) @ FORWARD), float((truth[t] - truth[h]) @ FORWARD)
+
+
+def test_a_shin_under_a_thigh_raised_past_the_horizontal_keeps_the_default_front():
+    """Thigh turned 150 degrees (raised forward and up past the horizontal), knee bent 90
+    degrees: the shin points at the viewer. The front the raised thigh carries points
+    down and away; the rule reads only the pelvis's (the thighs' parent's), and the
+    shin is left to the character's front. Measured with every leg bone reading its own
+    parent's carried front: shin +0.39 m (truth -0.39), mean / max joint error 0.114 /
+    0.897 m; thighs only: -0.39, 0.028 / 0.126."""
+    sk = _legged_figure()
+    pose = turned_about_x(sk, Pose.identity(sk.n_bones), ((2, -150.0), (4, 90.0)))
+    got, truth = _leg_depth(sk, pose, front_camera(ortho=True), "shin.L")
+    assert truth < -0.35  # -0.39: towards the viewer
+    assert abs(got - truth) < 0.03
+
+
+def test_a_foot_under_a_raised_thigh_keeps_the_default_front():
+    """Thigh raised 120 degrees, knee bent 90: the foot points at the viewer; with its
+    shin's carried front it started away (+0.20 m, truth -0.20)."""
+    sk = _figure_with_arms()
+    bone = {n: i for i, n in enumerate(sk.names)}
+    pose = turned_about_x(sk, Pose.identity(sk.n_bones),
+                          ((bone["thigh.L"], -120.0), (bone["shin.L"], 90.0)))
+    got, truth = _leg_depth(sk, pose, front_camera(ortho=True), "foot.L")
+    assert truth < -0.15
+    assert abs(got - truth) < 0.03
+
+
+def _raised_camera(degrees: float) -> Camera:
+    """An orthographic camera 6 m from (0, 0, 0.8), in front (-y), raised by ``degrees``."""
+    a = np.radians(degrees)
+    target = np.array([0.0, 0.0, 0.8])
+    return Camera.look_at(target + 6.0 * np.array([0.0, -np.cos(a), np.sin(a)]), target,
+                          width=800, height=600, ortho_scale=3.0)
+
+
+def test_the_front_is_the_characters_not_the_views():
+    """Through a raised camera the view's up leans back; ``(left - right) x up`` with it
+    leans the front up with the camera, with the rest pose's up it stays level."""
+    s = solving_skeleton(_legged_figure())
+    for degrees in (20.0, 45.0, 70.0):
+        cam = _raised_camera(degrees)
+        frame = energies.view_frame(cam, s.rest_joints.mean(axis=0))
+        front = start.front_direction(s, s.rest_joints, frame, start.REST_UP)
+        np.testing.assert_allclose(front, [0.0, -1.0, 0.0], atol=1e-9)
+        view = start.front_direction(s, s.rest_joints, frame)
+        assert float(view @ [0.0, 0.0, 1.0]) > 0.3  # 0.34 / 0.71 / 0.94
+
+
+def test_a_leg_stretched_back_seen_from_above_starts_behind_the_body():
+    """Body folded forward 90 degrees (towards the viewer), the left leg 45 degrees back,
+    through a camera raised 45 degrees: the pelvis carries the front straight down, which
+    from above is away from the viewer, as the leg is. With the view's up the front
+    leaned back with the camera and the pelvis carried it into the view plane: the rule
+    did nothing (mean joint error 0.300 m with it and without; 0.000 now)."""
+    sk = _legged_figure()
+    pose = turned_about_x(sk, Pose.identity(sk.n_bones), ((0, 90.0), (2, -45.0), (3, -90.0)))
+    cam = _raised_camera(45.0)
+    s = solving_skeleton(sk)
+    emb = project_embedding(sk, s, pose, cam)
+    truth = posed_joints(s, sk, pose)
+    off = {}
+    for share in (0.3, 0.0):
+        X = solve_pose3d(sk, emb, cam, options=DepthOptions(pelvis_front=share)).joints3d
+        off[share] = float(np.linalg.norm(X - X[0] - truth + truth[0], axis=1).mean())
+    assert off[0.0] > 0.2
+    assert off[0.3] < 0.01
+
+
+def test_pelvis_front_sides_reads_the_front_the_pelvis_carries():
+    """The left thigh drawn 40 degrees out of its pelvis's plane, the pelvis turned about
+    the x axis by 0, 140 and 160 degrees (upside down), aimed on its drawn side: the
+    thigh takes the side of the front (-y at bind) the pelvis carries (towards the viewer
+    unturned, away at 140); past the 150-degree limit it keeps the side it had, though
+    the carried front would say away."""
+    sk = _legged_figure()
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=True)
+    jmap = twist.joint_map(sk, s)
+    view = energies.view_frame(cam, s.rest_joints.mean(axis=0))
+    k = list(s.bones).index(2)  # thigh.L
+    assert start.thigh_bones(s)[k]
+    left = np.zeros(jmap.n_bones, bool)
+    left[k] = True
+    front = start.front_direction(s, s.rest_joints, view, start.REST_UP)
+    bind = Pose.identity(sk.n_bones)
+
+    def side(turn: float, before: float, max_turn: float = np.radians(150.0)) -> float:
+        pose = turned_about_x(sk, bind, ((0, turn), (2, -40.0)))
+        emb = project_embedding(sk, s, pose, cam)
+        signs = np.full(jmap.n_bones, before)
+        signs[0] = -1.0  # the pelvis link's drawn side (towards the viewer when turned)
+        out = start.pelvis_front_sides(sk, jmap, view, emb, bind, signs,
+                                       np.zeros(jmap.n_bones, bool), left, front,
+                                       max_turn=max_turn)
+        assert np.array_equal(np.delete(out, k), np.delete(signs, k))  # open_ only
+        return float(out[k])
+
+    assert side(0.0, 1.0) == -1.0
+    assert side(140.0, -1.0) == 1.0
+    assert side(160.0, -1.0) == -1.0  # upside down: past the limit, kept
+    assert side(160.0, -1.0, max_turn=np.pi) == 1.0  # what the limit holds back
+
+
+def test_arm_bend_starts_the_elbows_bent_as_at_rest():
+    """A figure whose elbows bend backwards at rest (forearms 6 degrees away from the
+    viewer), the left one flexed 70 degrees that way with the upper arm in the view
+    plane: off, the forearm starts towards the character's front (the viewer) and stays
+    there; with ``arm_bend`` the rest bend puts it away, where it is."""
+    sk = _figure_with_arms(elbows_back=True)
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=True)
+    bone = {n: i for i, n in enumerate(sk.names)}
+    pose = Pose.identity(sk.n_bones)
+    state = sk.forward(pose)
+    world = exp_map(np.array([0.0, 0.0, np.radians(70.0)]))  # forearm back (+y)
+    fore = bone["forearm.L"]
+    rot = sk.local_rotation_for_frame(fore, world @ state.frames[fore], state)
+    pose = pose.with_rotations(np.array([fore]), rot[None])
+    emb = project_embedding(sk, s, pose, cam)
+    truth = posed_joints(s, sk, pose)
+    k = list(s.bones).index(fore)
+    h, t = s.head_joint[k], s.tail_joint[k]
+    truth_dz = float((truth[t] - truth[h]) @ FORWARD)
+    assert truth_dz > 0.25  # 0.30: away from the viewer
+    dz = {}
+    for arms in (False, True):
+        X = solve_pose3d(sk, emb, cam, options=DepthOptions(arm_bend=arms)).joints3d
+        dz[arms] = float((X[t] - X[h]) @ FORWARD)
+    assert dz[False] < -0.25  # -0.30: the front's side, mirrored
+    assert abs(dz[True] - truth_dz) < 0.05  # measured 0.000
+
+
+def test_a_limb_swung_away_on_the_starts_wrong_side_is_held_there_by_its_lifted_depth():
+    """The cost of ``lifted_reference``: the left arm swung 40 degrees away from the
+    viewer through the perspective camera starts in front (the character's front), and
+    the share of that start's depth in E_v's reference holds it there. Measured, the hand
+    tip's depth error (m) at share 0 / 0.3 (the default) / 1: 0.442 / 0.534 / 0.688
+    (mean joint error 0.061 / 0.072 / 0.090); with an orthographic camera at 35 degrees
+    0.432 / 0.440 / 0.493."""
+    sk = _figure_with_arms()
+    s = solving_skeleton(sk)
+    cam = front_camera()  # perspective
+    bone = {n: i for i, n in enumerate(sk.names)}
+    pose = Pose.identity(sk.n_bones)
+    state = sk.forward(pose)
+    world = exp_map(np.array([0.0, 0.0, np.radians(40.0)]))
+    arm = bone["upper_arm.L"]
+    rot = sk.local_rotation_for_frame(arm, world @ state.frames[arm], state)
+    pose = pose.with_rotations(np.array([arm]), rot[None])
+    emb = project_embedding(sk, s, pose, cam)
+    truth = posed_joints(s, sk, pose)
+    tip = s.tail_joint[list(s.bones).index(bone["hand.L"])]
+    assert (truth[tip] - truth[0]) @ FORWARD > 0.4  # 0.425: away from the viewer
+
+    def tip_error(share: float) -> float:
+        X = solve_pose3d(sk, emb, cam, options=DepthOptions(lifted_reference=share)).joints3d
+        return abs(float((X[tip] - X[0] - truth[tip] + truth[0]) @ FORWARD))
+
+    at0, default, at1 = tip_error(0.0), tip_error(DepthOptions().lifted_reference), tip_error(1.0)
+    assert at0 > 0.35  # on the wrong side either way
+    assert default > at0 + 0.05
+    assert at1 > default + 0.1

@@ -5,7 +5,7 @@ which side. The start aims every solving bone at its drawn direction, lifted by 
 amount, on the bind pose's side when the bone clearly has one (depth slope above 0.3)
 and is drawn within 45 degrees of its bind direction and near its bind image, else
 towards the character's front (its ``.L`` side is its own left), or towards the viewer
-when the front is not clear (a side view); the legs take that front as their pelvis
+when the front is not clear (a side view); the thighs take that front as their pelvis
 carries it (:func:`pelvis_front_sides`), and a bone drawn as its parents carry it from
 the bind pose takes its bind side (:func:`carried_sides`); the rig's limits and the rest
 bend of the knees (of elbows too on request) decide the bones at those joints
@@ -33,7 +33,8 @@ from ..solving import symmetric_joint_pairs
 from ..types import Embedding2D, SolvingSkeleton
 from . import twist
 from .energies import ViewFrame
-from .ordering import OrderingConstraint, violations
+from .ordering import OrderingConstraint, ancestors, violations
+from .regularity import spine_chain
 
 
 def _first_pairs(solving: SolvingSkeleton) -> np.ndarray:
@@ -51,22 +52,64 @@ def _first_pairs(solving: SolvingSkeleton) -> np.ndarray:
     return pairs[level == level.min()]
 
 
-def front_direction(solving: SolvingSkeleton, rest_joints: np.ndarray, frame: ViewFrame
-                    ) -> np.ndarray | None:
+#: The rest pose's up, world axes: Blender's +Z, on which a rig stands at rest.
+REST_UP = np.array([0.0, 0.0, 1.0])
+
+
+def leg_pairs(solving: SolvingSkeleton, up: np.ndarray = REST_UP) -> np.ndarray:
+    """The left/right joint pairs the legs hang from (hips), shape ``(p, 2)`` (ours).
+
+    The limbs' top pairs (a pair whose joints' parent joint is in no pair: hips,
+    shoulders, not knees or elbows) that lie at or below the middle of the body's axis
+    (the root's unsided chain up to the head, :func:`.regularity.spine_chain`) along the
+    rest pose's ``up``, and of those the ones nearest the root. Tree depth alone would
+    take the arms of a bust (a rig whose only pairs hang from the chest) for legs.
+
+    Args:
+        solving: The solving skeleton.
+        up: The rest pose's up, world axes, ``(3,)``.
+
+    Returns:
+        Joint pairs, ``(p, 2)`` int; none on a rig whose paired limbs all hang from the
+        upper half of its axis (a bust) or whose sided bones form no pairs.
+    """
+    pairs = symmetric_joint_pairs(solving)
+    if not len(pairs):
+        return pairs
+    jp = np.asarray(solving.joint_parent)
+    paired = set(int(j) for j in pairs.ravel())
+    top = np.array([int(jp[a]) not in paired and int(jp[b]) not in paired for a, b in pairs],
+                   dtype=bool)
+    height = np.asarray(solving.rest_joints, float) @ np.asarray(up, float)
+    axis = height[spine_chain(solving, through_branches=True)]
+    low = height[pairs].max(axis=1) <= 0.5 * (axis.min() + axis.max()) + 1e-9
+    pairs = pairs[top & low]
+    if not len(pairs):
+        return pairs
+    depth = np.array([len(ancestors(jp, int(j))) for j in pairs[:, 0]])
+    return pairs[depth == depth.min()]
+
+
+def front_direction(solving: SolvingSkeleton, rest_joints: np.ndarray, frame: ViewFrame,
+                    up: np.ndarray | None = None) -> np.ndarray | None:
     """The way the bind pose faces, ``(left - right) x up``, as a unit vector.
 
     A rig's ``.L`` side is the character's own left: with the first joint of each of the
     left/right pairs nearest the root (:func:`_first_pairs`) on the left, the character
-    faces ``(left - right) x up`` (``up`` the view's).
+    faces ``(left - right) x up``. With the view's up (the default) that is the front
+    only for a level camera; the character's own is the rest pose's up
+    (:data:`REST_UP`): a humanoid's chest, a quadruped's head.
 
     Args:
         solving: The solving skeleton.
         rest_joints: Bind-pose joints, world units, shape ``(J, 3)``.
         frame: The view.
+        up: The up axis, world axes, ``(3,)`` (None: the view's up). When the pairs lie
+            within 6 degrees of it, the view's up is used instead.
 
     Returns:
         The unit facing direction, world axes, ``(3,)``; None when the rig has no
-        left/right pairs or they lie along the view's up axis.
+        left/right pairs or they lie along both axes.
     """
     pairs = _first_pairs(solving)
     if not len(pairs):
@@ -75,6 +118,12 @@ def front_direction(solving: SolvingSkeleton, rest_joints: np.ndarray, frame: Vi
     left = np.array([1.0 if side == "L" else -1.0 for side in sides])
     across = np.sum(left[:, None] * (rest_joints[pairs[:, 0]] - rest_joints[pairs[:, 1]]),
                     axis=0)
+    if up is not None:
+        up = np.asarray(up, float)
+        front = np.cross(across, up)
+        norm = float(np.linalg.norm(front))
+        if norm > 0.1 * float(np.linalg.norm(across) * np.linalg.norm(up)):  # 6 degrees
+            return front / norm
     front = np.cross(across, frame.up)
     norm = float(np.linalg.norm(front))
     return front / norm if norm > 1e-12 else None
@@ -375,21 +424,34 @@ def carried_sides(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     return _aim_in_order(skeleton, jmap, frame, embedding, bind, signs, fixed, decide)[1]
 
 
-def limbs_below_first_pairs(solving: SolvingSkeleton) -> np.ndarray:
-    """Solving bones of the limbs hanging from the left/right pair nearest the root.
-
-    The bones whose head is a joint of :func:`_first_pairs` (a humanoid's or a
-    quadruped's thighs) and every solving bone below them (shins, feet).
+def thigh_bones(solving: SolvingSkeleton, up: np.ndarray = REST_UP) -> np.ndarray:
+    """Solving bones whose head is a joint the legs hang from (:func:`leg_pairs`): thighs.
 
     Args:
         solving: The solving skeleton.
+        up: The rest pose's up, world axes, ``(3,)``.
 
     Returns:
         ``(m,)`` bool over the solving bones.
     """
-    first = set(int(j) for j in _first_pairs(solving).ravel())
+    return np.isin(np.asarray(solving.head_joint), leg_pairs(solving, up).ravel())
+
+
+def leg_bones(solving: SolvingSkeleton, up: np.ndarray = REST_UP) -> np.ndarray:
+    """Solving bones of the legs: the thighs (:func:`thigh_bones`) and every bone below.
+
+    A humanoid's or a quadruped's hind legs (thighs, shins, feet); none on a bust
+    (:func:`leg_pairs`).
+
+    Args:
+        solving: The solving skeleton.
+        up: The rest pose's up, world axes, ``(3,)``.
+
+    Returns:
+        ``(m,)`` bool over the solving bones.
+    """
     parent = np.asarray(solving.parent)
-    out = np.array([int(j) in first for j in solving.head_joint], dtype=bool)
+    out = thigh_bones(solving, up)
     for k in range(len(out)):  # parents come before their children
         if parent[k] >= 0 and out[parent[k]]:
             out[k] = True
@@ -401,18 +463,21 @@ def pelvis_front_sides(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFram
                        fixed: np.ndarray, open_: np.ndarray, front: np.ndarray,
                        min_slope: float = 0.3, min_lift: float = 0.1,
                        max_turn: float = np.radians(150.0)) -> np.ndarray:
-    """Depth sides of leg bones from the front their parents carry (ours).
+    """Depth sides of thighs from the front their pelvis carries (ours).
 
     The default side of a lifted bone is the character's front (:func:`start_pose`), the
     bind pose's facing. A body bent far forward or back turns its pelvis with it, and a
-    leg drawn foreshortened is then in front of the pelvis (hip flexion, up to 120
+    thigh drawn foreshortened is then in front of the pelvis (hip flexion, up to 120
     degrees) far more often than behind it (hip extension, 10-30 degrees): a body bent
     forward with a leg stretched back points that leg away from the viewer whom its
-    front faces. Each bone in ``open_`` takes the side towards ``front`` as its parent's
-    start rotation carries it (the parent aimed first, as in :func:`lifted_pose`), when
-    that carried front leaves the view plane by at least ``min_slope`` (else it keeps its
-    side). Only bones that leave the view plane by at least ``min_lift`` of their length
-    are decided.
+    front faces. Each bone in ``open_`` (the thighs, :func:`thigh_bones`: their parent
+    is the pelvis) takes the side towards ``front`` as its parent's start rotation
+    carries it (the parent aimed first, as in :func:`lifted_pose`), when that carried
+    front leaves the view plane by at least ``min_slope`` (else it keeps its side). Not
+    for the bones below: a knee bends backwards, so the front a thigh carries says
+    nothing of its shin's side (a thigh raised past 90 degrees carries it down and
+    away, with a shin pointing at the viewer), nor of a foot's under its shin. Only bones
+    that leave the view plane by at least ``min_lift`` of their length are decided.
 
     Args:
         skeleton: The full skeleton.
@@ -425,8 +490,8 @@ def pelvis_front_sides(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFram
         fixed: Solving bones left at their bind rotation, ``(m,)`` bool.
         open_: Solving bones whose side this decides, ``(m,)`` bool.
         front: The character's front in ``bind``'s rest frames, world axes, ``(3,)``
-            (:func:`front_direction`; reversed for a character drawn turned around when
-            ``bind`` is not turned).
+            (:func:`front_direction` with the rest pose's up; reversed for a character
+            drawn turned around when ``bind`` is not turned).
         min_slope: Smallest depth component of the carried unit front.
         min_lift: Smallest depth change over length of a decided bone.
         max_turn: Largest angle between the parent's direction in ``bind`` and in the
@@ -484,14 +549,14 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     tilted view ray, and both bends looked natural (CMU poses on the Adventurer 7.32 ->
     7.30 % of the height, the 25 traced drawings with cached 2D fits 7.86 -> 7.78, the
     sample characters' exact embeddings unchanged at 4.11). When neither test decides a
-    knee (the middle bone of a limb hanging from the left/right pair nearest the root, the
-    hips), the side that bends it more is taken instead of the default (ours; CMU 7.30 ->
-    7.30, sample characters 4.11 -> 4.06, traced 7.78 -> 7.73). Not for elbows: there it
+    knee (the middle bone of a limb hanging from the hips, :func:`leg_pairs`), the side
+    that bends it more is taken instead of the default (ours; CMU 7.30 -> 7.30, sample
+    characters 4.11 -> 4.06, traced 7.78 -> 7.73). Not for elbows: there it
     turned the oblique throw's forearm, pointing at the viewer, away. Only bones that
     leave the view plane by at least ``min_lift`` of their length are decided; the others
-    keep ``signs``. The rest bend decides only the legs' middle bones (the limbs below
-    the left/right pair nearest the root, :func:`limbs_below_first_pairs`; every limb's
-    on a rig without such pairs) unless ``arms`` (ours): the start aims the upper arm
+    keep ``signs``. The rest bend decides only the legs' middle bones (:func:`leg_bones`;
+    none on a bust, whose pairs all hang from the upper half of its axis; every limb's
+    on a rig whose sided bones form no pairs) unless ``arms`` (ours): the start aims the upper arm
     keeping its bind twist, and the shoulder turns the arm about its own axis far more
     than the hip turns the thigh, so the elbow's carried hinge axis says little. On the
     40 CMU poses the elbows' rest bend picked the right side for 6 of the 32 clearly
@@ -531,10 +596,10 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                       and side_of(skeleton.names[b]) is not None
                       for k, b in enumerate(jmap.bones)])
 
-    if not arms and len(_first_pairs(s)):
-        hinge &= limbs_below_first_pairs(s)
+    if not arms and len(symmetric_joint_pairs(s)):
+        hinge &= leg_bones(s)
     index = {int(b): i for i, b in enumerate(jmap.bones)}
-    hips = set(int(j) for j in _first_pairs(s).ravel())
+    hips = set(int(j) for j in leg_pairs(s).ravel())
 
     def decide(k: int, bone: int, sides: np.ndarray, depth: float, state: PoseState,
                pose: Pose) -> float | None:
@@ -626,10 +691,10 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
             to the default.
         turn: For a character drawn turned around, aim the bones from the bind pose
             turned half round (:func:`turned_bind`).
-        pelvis_front: The legs (:func:`limbs_below_first_pairs`) whose side is still a
-            guess take the front their parents carry when it leaves the view plane by
-            at least this much (:func:`pelvis_front_sides`); 0 leaves them to the
-            default.
+        pelvis_front: The thighs (:func:`thigh_bones`) whose side is still a guess take
+            the character's front (with the rest pose's up) as their pelvis carries it
+            when it leaves the view plane by at least this much
+            (:func:`pelvis_front_sides`); 0 leaves them to the default.
         arm_bend: With ``natural_bend``, the elbows bend as at rest too, not only the
             knees (:func:`hinge_signs` ``arms``).
 
@@ -659,11 +724,12 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     turned = facing < 0 and turn
     if turned:
         bind = turned_bind(skeleton, jm, f, bind, fixed)
-    facing_dir = front_direction(sk, sk.rest_joints, f) if pelvis_front > 0.0 else None
+    facing_dir = (front_direction(sk, sk.rest_joints, f, REST_UP) if pelvis_front > 0.0
+                  else None)
     if facing_dir is not None:
         # The turned bind pose carries the front round with it; the unturned one does not.
         signs = pelvis_front_sides(skeleton, jm, f, embedding, bind, signs, fixed,
-                                   ~kept & limbs_below_first_pairs(sk),
+                                   ~kept & thigh_bones(sk),
                                    facing_dir if turned else facing * facing_dir,
                                    pelvis_front)
     if carried_turn > 0.0:
