@@ -15,10 +15,10 @@ from tests.core.fixtures import chain_skeleton, front_camera
 
 def _snake():
     """Five straight links along x (names b0..b4, no side), turned as a whole 40 degrees
-    about the vertical towards the viewer: drawn straight, every link at cos 40 = 0.77
-    of its length, the same-direction rule's very case. (Lifted, it stays near the view
-    plane: E_v reads a drawing foreshortened evenly throughout as drawn at a smaller
-    scale, Eqs. 6-7, not as turned.)"""
+    about the vertical, its tip away from the viewer (+y): drawn straight, every link
+    at cos 40 = 0.77 of its length, the same-direction rule's very case. (Lifted, it
+    stays near the view plane: E_v reads a drawing foreshortened evenly throughout as
+    drawn at a smaller scale, Eqs. 6-7, not as turned.)"""
     sk = chain_skeleton(np.array([[-1.0 + 0.4 * i, 0.0, 0.8] for i in range(6)]))
     world = exp_map(np.array([0.0, 0.0, np.radians(40.0)]))
     rot = np.tile(np.eye(3), (sk.n_bones, 1, 1))

@@ -127,9 +127,9 @@ class DepthOptions:
         bind_side: Smallest agreement at which the start lifts a bone on its bind depth
             side (when that side is clear); below it the bone has moved and takes the
             default side (ours).
-        natural_bend: Start bones bent against their parents at rest (knees, elbows) on
-            the depth side that bends them the same way (ours; IK limits on the bone
-            decide first).
+        natural_bend: Start the knees (the elbows too with ``arm_bend``), bent against
+            their parents at rest, on the depth side that bends them the same way (ours;
+            IK limits on the bone decide first).
         start_sides: E_v's reference for the bones drawn unlike the bind pose (agreement
             below ``bind_keep``) is the bind pose's depth change in size only, on the
             start's depth side (ours; :func:`_sided_reference`). Pinned bones, which the
@@ -203,9 +203,11 @@ class DepthOptions:
             contour-read order's back part in front of its front part for the order to
             be enforced (ours; 0 / 0.1 / 0.3: 7.66 / 7.66 / 7.69 % of the height on the
             25 traced drawings).
-        pelvis_front: The legs' bones (below the left/right pair nearest the root) whose
-            depth side is the default guess take the character's front as their parents'
-            start rotations carry it (:func:`.start.pelvis_front_sides`; ours) when it
+        pelvis_front: The thighs (:func:`.start.thigh_bones`: the top bones of the limbs
+            hanging from the lower half of the body's axis) whose depth side is the
+            default guess take the character's front (``(left - right) x up`` with the
+            rest pose's up, :data:`.start.REST_UP`, not the view's) as their pelvis's
+            start rotation carries it (:func:`.start.pelvis_front_sides`; ours) when it
             leaves the view plane by at least this much (a unit vector's depth
             component); 0 leaves them to the bind pose's front. A body bent far forward
             with a leg stretched back had that leg start in front, towards the front the
@@ -213,15 +215,24 @@ class DepthOptions:
             % of the height (median 5.88 -> 5.77; above 8%: 8 -> 6 poses; frames 3, 7
             and 22 14.8 / 13.2 / 10.8 -> 8.4 / 6.8 / 5.4, frame 24 6.8 -> 7.2); the
             sample characters' exact embeddings 3.84 -> 3.82 (the oblique run 7.35 ->
-            6.75); the 25 traced drawings (cached 2D fits) unchanged at 7.01. A parent
-            turned more than 150 degrees from its bind direction decides nothing (its
-            aim's axis, hence the carried front, is a guess): without that limit the
-            CMU frame 31, a pose with its pelvis upside down (its link turned 152 degrees), went
-            from 7.27 to 10.8 (mean 6.02); 150 degrees is set from these poses (the
-            three it helps turn theirs 113-141 degrees).
+            6.75); the 25 traced drawings (cached 2D fits) unchanged at 7.01. Those
+            figures had every leg bone read the front its own parent carries; the bones
+            below the thighs now keep the default: a knee bends backwards, and a thigh
+            raised past 90 degrees carries the front down and away from a shin pointing
+            at the viewer (thigh 150 / knee 90 degrees: the shin +0.39 m deep instead of
+            -0.39). That costs, at the current defaults, CMU 5.33 -> 5.40 (median 5.10
+            -> 5.12, above 8%: 4 -> 5; frames 3, 7 and 22 7.64 / 6.38 / 5.08 -> 8.49 /
+            7.09 / 5.65) and the sample characters 3.50 -> 3.52 (the oblique run 6.35 ->
+            6.94); every leg bone reading the pelvis's carried front instead gave CMU
+            5.38. A parent turned more than 150 degrees from its bind direction decides
+            nothing (its aim's axis, hence the carried front, is a guess): without that
+            limit the CMU frame 31, a pose with its pelvis upside down (its link turned
+            152 degrees), went from 7.27 to 10.8 (mean 6.02); 150 degrees is set from
+            these poses (the three it helps turn theirs 113-141 degrees).
         arm_bend: With ``natural_bend``, start the elbows bent as at rest too (off, ours:
-            only the knees, :func:`.start.hinge_signs`). The start aims an upper arm
-            keeping its bind twist, and the shoulder turns the arm about its own axis far
+            only the knees, :func:`.start.hinge_signs`; every limb's on a rig whose sided
+            bones form no pairs, none on a bust). The start aims an upper arm keeping its
+            bind twist, and the shoulder turns the arm about its own axis far
             more than the hip turns the thigh: on the 40 CMU poses the elbows' rest bend
             picked the right depth side for 6 of the 32 clearly turned forearms it
             decided (the knees' for 21 of 25). Off against on: CMU poses on the
@@ -236,8 +247,8 @@ class DepthOptions:
             depth change on the start's side (``start_sides``; ours,
             :func:`_sided_reference`). Measured from the bind pose alone (0), E_v pulls a
             moved limb drawn at 60-90% of the drawing's average foreshortening back
-            towards the bind pose's depth, for an arm or leg at bind the view plane
-            (Eq. 7 reads such a link as drawn inaccurately): torsos leaning and limbs
+            towards the bind pose's depth (the view plane for an arm or leg hanging at
+            bind; Eq. 7 reads such a link as drawn inaccurately): torsos leaning and limbs
             stepping or reaching towards the viewer were lost. Mean 3D error, % of the
             height, at 0 / 0.2 / 0.3 / 0.4 / 0.5 / 1: CMU poses on the Adventurer (exact
             embeddings) 5.85 / 5.48 / 5.33 / 5.20 / 5.10 / 4.94 (median 5.77 -> 5.10 at
@@ -246,8 +257,9 @@ class DepthOptions:
             6.76 / 6.75 / 6.77 / 6.78 / 6.79 (mild poses 3.58 / 3.52 / 3.54 / 3.60 / 3.63
             / 3.80: where the 2D fit draws a link short, E_v no longer flattens it; the
             demo drawing 3.22 -> 3.73 at 0.3, 5.40 at 1). On the start's wrong side it
-            holds the limb there (a test arm swung 35 degrees away from the viewer, which
-            the start puts in front: hand 0.43 -> 0.44 m off in depth).
+            holds the limb there (a test arm swung 40 degrees away from the viewer
+            through a perspective camera, which the start puts in front: the hand's depth
+            0.44 / 0.53 / 0.69 m off at 0 / 0.3 / 1).
     """
 
     alpha: float = 200.0
