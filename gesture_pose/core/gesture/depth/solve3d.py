@@ -221,7 +221,7 @@ class DepthOptions:
             raised past 90 degrees carries the front down and away from a shin pointing
             at the viewer (thigh 150 / knee 90 degrees: the shin +0.39 m deep instead of
             -0.39). That costs, at the current defaults, CMU 5.33 -> 5.40 (median 5.10
-            -> 5.12, above 8%: 4 -> 5; frames 3, 7 and 22 7.64 / 6.38 / 5.08 -> 8.49 /
+            -> 5.11, above 8%: 4 -> 5; frames 3, 7 and 22 7.64 / 6.38 / 5.08 -> 8.49 /
             7.09 / 5.65) and the sample characters 3.50 -> 3.52 (the oblique run 6.35 ->
             6.94); every leg bone reading the pelvis's carried front instead gave CMU
             5.38. A parent turned more than 150 degrees from its bind direction decides
