@@ -10,9 +10,11 @@ from scipy.optimize import least_squares
 from gesture_pose.core.camera import Camera
 from gesture_pose.core.skeleton import Pose
 from gesture_pose.core.stick.capsules import (
+    Capsules,
     body_collision,
     bone_masses,
     capsules_from_mesh,
+    pair_closest,
     segment_closest,
 )
 from gesture_pose.core.stick.environment import Environment, distance_grid
@@ -150,6 +152,50 @@ def test_body_collision_counts_only_overlaps():
     j = list(caps.bones).index(thigh)
     expected = (caps.radii[i] + caps.radii[j]) ** 2  # axes cross: distance 0
     assert np.isclose(e[0], expected, rtol=1e-6)
+
+
+def test_pair_closest_is_segment_closest_where_capsules_can_touch():
+    # Random capsules crowded into a small box: some pairs overlap, most do not.
+    rng = np.random.default_rng(5)
+    c, P = 30, 4
+    start = rng.uniform(-0.5, 0.5, size=(P, c, 3))
+    end = start + rng.normal(scale=0.15, size=(P, c, 3))
+    end[:, :3] = start[:, :3]  # spheres (axes of no length)
+    ii, jj = np.triu_indices(c, 1)
+    caps = Capsules(np.arange(c), rng.uniform(0.02, 0.08, c), np.stack([ii, jj], 1))
+    s, t, d = pair_closest(caps, start, end)
+    s0, t0, d0 = segment_closest(start[:, ii], end[:, ii], start[:, jj], end[:, jj])
+    rr = caps.radii[ii] + caps.radii[jj]
+    near = np.isfinite(d)
+    # Bit-identical where computed; left out only where the capsules are apart.
+    assert np.array_equal(s[near], s0[near]) and np.array_equal(t[near], t0[near])
+    assert np.array_equal(d[near], d0[near])
+    assert np.all(d0[~near] > rr[None].repeat(P, 0)[~near])
+    assert 0 < near.sum() < 0.5 * near.size
+    pen = np.maximum(rr - d, 0.0)
+    assert np.array_equal(pen, np.maximum(rr - d0, 0.0)) and np.any(pen > 0)
+
+
+def test_body_collision_gradient_is_the_all_pairs_one():
+    """The pruned pairs add nothing: energy and gradient equal the all-pairs formula."""
+    rng = np.random.default_rng(6)
+    n, P = 24, 3
+    heads = rng.uniform(-0.4, 0.4, size=(P, n, 3))
+    tails = heads + rng.normal(scale=0.2, size=(P, n, 3))
+    ii, jj = np.triu_indices(n, 1)
+    caps = Capsules(np.arange(n), rng.uniform(0.03, 0.07, n), np.stack([ii, jj], 1))
+    e, gh, gt = body_collision(caps, heads, tails, grad=True)
+    # The formula on all pairs, as body_collision computed it before the pruning.
+    p0, p1, q0, q1 = heads[:, ii], tails[:, ii], heads[:, jj], tails[:, jj]
+    s, t, d = segment_closest(p0, p1, q0, q1)
+    pen = np.maximum(caps.radii[ii] + caps.radii[jj] - d, 0.0)
+    assert np.array_equal(e, np.sum(pen**2, axis=1)) and np.all(e > 0)
+    diff = p0 + s[..., None] * (p1 - p0) - q0 - t[..., None] * (q1 - q0)
+    g = (-2.0 * pen)[..., None] * (diff / np.maximum(d, 1e-12)[..., None])
+    rh, rt = np.zeros_like(heads), np.zeros_like(tails)
+    for arr, idx, coef in ((rh, ii, 1 - s), (rt, ii, s), (rh, jj, -(1 - t)), (rt, jj, -t)):
+        np.add.at(arr, (slice(None), idx), coef[..., None] * g)
+    assert np.array_equal(gh, rh) and np.array_equal(gt, rt)
 
 
 def test_capsule_radii_from_a_cylinder_mesh():

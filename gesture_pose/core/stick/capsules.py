@@ -94,6 +94,50 @@ def segment_closest(p0, p1, q0, q1) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return s, t, np.linalg.norm(diff, axis=-1)
 
 
+#: Slack (world units) of :func:`pair_closest`'s bounding-sphere test: a pair is left out
+#: only when its spheres are apart by more than this, far above the rounding of the test.
+SPHERE_SLACK = 1e-6
+
+
+def pair_closest(caps: Capsules, start: np.ndarray, end: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`segment_closest` of every capsule pair, computed only where they can touch.
+
+    Each capsule lies in the sphere about its axis' midpoint of radius half its axis plus
+    its own radius; a pair whose spheres are apart (by more than :data:`SPHERE_SLACK`)
+    does not overlap, its penetration ``max(0, r_a + r_b - d)`` is zero and its distance
+    is not needed. Those pairs get ``s = t = 0`` and ``d = inf``; the others the values
+    :func:`segment_closest` gives them on all pairs (the same operations element by
+    element, so the penetrations, energies and gradients are bit-identical). On the
+    Adventurer most of its 822 pairs are apart in any pose.
+
+    Args:
+        caps: The capsules (``pairs`` ``(q, 2)``).
+        start: Capsule axes' starts, shape ``(..., c, 3)``.
+        end: Their ends, shape ``(..., c, 3)``.
+
+    Returns:
+        ``(s, t, d)``, each of shape ``(..., q)``.
+    """
+    a, b = caps.pairs[:, 0], caps.pairs[:, 1]
+    mid = 0.5 * (start + end)
+    reach = 0.5 * np.linalg.norm(end - start, axis=-1) + caps.radii
+    gap = mid[..., a, :] - mid[..., b, :]
+    near = (np.sqrt(np.sum(gap * gap, -1)) <= reach[..., a] + reach[..., b] + SPHERE_SLACK)
+    # Laid out pair-major as segment_closest lays out (..., q) from start[:, a]: sums of
+    # the penetrations over the pairs then add in the same order (the same bits).
+    shape = near.shape
+    s, t = np.zeros(shape, order="F"), np.zeros(shape, order="F")
+    d = np.full(shape, np.inf, order="F")
+    idx = np.nonzero(near)
+    if idx[-1].size:
+        lead = idx[:-1]
+        pa, pb = a[idx[-1]], b[idx[-1]]
+        s[idx], t[idx], d[idx] = segment_closest(start[lead + (pa,)], end[lead + (pa,)],
+                                                 start[lead + (pb,)], end[lead + (pb,)])
+    return s, t, d
+
+
 def capsules_from_mesh(skeleton: Skeleton, vertices: np.ndarray | None = None,
                        weights: np.ndarray | None = None,
                        default_ratio: float = 0.12) -> Capsules:
@@ -192,18 +236,24 @@ def body_collision(caps: Capsules, heads: np.ndarray, tails: np.ndarray,
                                                              else None)
     a, b = caps.pairs[:, 0], caps.pairs[:, 1]
     start, end = caps.segments(heads, tails)
-    p0, p1, q0, q1 = start[:, a], end[:, a], start[:, b], end[:, b]
-    s, t, d = segment_closest(p0, p1, q0, q1)
+    s, t, d = pair_closest(caps, start, end)
     pen = np.maximum(caps.radii[a] + caps.radii[b] - d, 0.0)
     energy = np.sum(pen**2, axis=1)
     if not grad:
         return energy, None, None
-    diff = p0 + s[..., None] * (p1 - p0) - q0 - t[..., None] * (q1 - q0)
-    u = diff / np.maximum(d, 1e-12)[..., None]
-    g = (-2.0 * pen)[..., None] * u  # dE/d(closest point on a)
     g0, g1 = np.zeros_like(start), np.zeros_like(end)
-    for arr, idx, coef in ((g0, a, (1 - s)), (g1, a, s), (g0, b, -(1 - t)), (g1, b, -t)):
-        np.add.at(arr, (slice(None), idx), coef[..., None] * g)
+    # Only the overlapping pairs push: the others would add zeros (the sums of the
+    # overlapping ones keep their order, so the gradient is the same to the last bit).
+    pi, qi = np.nonzero(pen > 0.0)
+    if qi.size:
+        a, b, s, t, d, pen = a[qi], b[qi], s[pi, qi], t[pi, qi], d[pi, qi], pen[pi, qi]
+        p0, p1, q0, q1 = start[pi, a], end[pi, a], start[pi, b], end[pi, b]
+        diff = p0 + s[..., None] * (p1 - p0) - q0 - t[..., None] * (q1 - q0)
+        u = diff / np.maximum(d, 1e-12)[..., None]
+        g = (-2.0 * pen)[..., None] * u  # dE/d(closest point on a)
+        for arr, idx, coef in ((g0, a, (1 - s)), (g1, a, s), (g0, b, -(1 - t)),
+                               (g1, b, -t)):
+            np.add.at(arr, (pi, idx), coef[..., None] * g)
     return (energy,) + caps.scatter(g0, g1, heads.shape[-2])
 
 

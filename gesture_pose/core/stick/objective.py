@@ -45,7 +45,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from ..camera import Camera
-from .capsules import Capsules, axis_samples, body_collision, segment_closest
+from .capsules import Capsules, axis_samples, body_collision, pair_closest
 from .environment import DistanceGrid
 from .graph import StickFigure
 from .kinematics import N_ROOT_GENES, PoseModel
@@ -531,7 +531,7 @@ class StickObjective:
             start, end = caps.segments(heads, tails)
             if len(caps.pairs):
                 ca, cb = caps.pairs[:, 0], caps.pairs[:, 1]
-                _, _, d = segment_closest(start[:, ca], end[:, ca], start[:, cb], end[:, cb])
+                _, _, d = pair_closest(caps, start, end)
                 rr = caps.radii[ca] + caps.radii[cb]
                 out.append(c * np.maximum(rr - d, 0.0))
             if self.grid is not None and np.any(self.env_capsules):
@@ -641,8 +641,7 @@ class StickObjective:
             start, end = caps.segments(heads, tails)
         if pairs:
             ca, cb = caps.pairs[:, 0], caps.pairs[:, 1]
-            p0, p1, q0, q1 = start[ca], end[ca], start[cb], end[cb]
-            s_, t_, d = segment_closest(p0, p1, q0, q1)
+            s_, t_, d = pair_closest(caps, start, end)
             rr = caps.radii[ca] + caps.radii[cb]
             pen_pairs = np.maximum(rr - d, 0.0)
             rs.append(c * pen_pairs)
@@ -679,9 +678,10 @@ class StickObjective:
                 on = np.flatnonzero(pen_pairs > 0)
                 if on.size:
                     s1, t1 = s_[on, None], t_[on, None]
-                    diff = p0[on] + s1 * (p1[on] - p0[on]) - q0[on] - t1 * (q1[on] - q0[on])
-                    un = diff / np.maximum(d[on], 1e-12)[:, None]
                     a_, b_ = ca[on], cb[on]
+                    p0, p1, q0, q1 = start[a_], end[a_], start[b_], end[b_]
+                    diff = p0 + s1 * (p1 - p0) - q0 - t1 * (q1 - q0)
+                    un = diff / np.maximum(d[on], 1e-12)[:, None]
                     dd = ((1 - s1)[..., None] * J0[a_] + s1[..., None] * J1[a_] -
                           (1 - t1)[..., None] * J0[b_] - t1[..., None] * J1[b_])
                     jac[on] = -np.einsum("qd,qdg->qg", un, dd)
