@@ -443,7 +443,8 @@ def _limb_resolves(problem, base, contour: list[JointCandidates], mid_r: np.ndar
     The fine DP searches only near the coarse answer, and the coarse pass has no
     naturalness triplets: a limb it folds onto one contour (a raised forearm laid back
     along the upper arm: the raised arm seen obliquely, 11.7% of the height off at its
-    worst joint, 3.8 after) stays folded when the right placement was never a fine candidate. Here each free
+    worst joint, 3.8 after) stays folded when the right placement was never a fine
+    candidate. Here each free
     chain (:func:`_limb_chains`: elbow, wrist and hand; knee, ankle and foot; neck and
     head) is solved by the DP with triplets over wide candidate sets (:func:`_limb_sets`)
     while every other joint keeps its placement, and replaces the solution by
