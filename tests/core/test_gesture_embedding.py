@@ -413,3 +413,37 @@ def test_a_limb_re_solve_is_kept_for_a_lower_penalized_energy_at_no_less_coverag
     assert embedding._limb_accepts(sol(1, 0.79, 9.0), sol(2, 0.80, 4.5), params)
     assert not embedding._limb_accepts(sol(1, 0.75, 9.0), sol(2, 0.80, 4.5), params)
     assert not embedding._limb_accepts(sol(1, 0.80, 15.0), sol(2, 0.80, 4.5), params)
+
+
+def test_limb_re_solve_sets_hold_the_rest_and_offer_rigid_joints_their_offsets():
+    """Outside the chain every joint keeps its placement; a rigid joint (the unconnected
+    arm heads of the Y-shaped tree) is offered its current placement and its offset from
+    its parent, so the re-solve can keep the solution as it is or snap the rigid part."""
+    cam, _, pixels, _, _ = _arm_case()
+    d = preprocess([Stroke(pixels)])
+    sol = solving_skeleton(tree_skeleton())
+    ppu = cam.pixels_per_unit(6.0)
+    reference = cam.project(sol.rest_joints)
+    problem = make_problem(d, sol, ppu, reference)
+    params = GestureParams()
+    n = sol.n_joints
+    contour = [contour_candidates(d, np.array([20.0]), bool(problem.terminal[j]),
+                                  problem.params, params.pool_candidates) for j in range(n)]
+    placed = reference + 5.0  # the whole tree shifted, with a rigid head a bit off
+    rigid = np.flatnonzero(problem.rigid)
+    assert rigid.size == 2
+    placed[rigid[0]] += [3.0, -2.0]
+    conf = JointCandidates(placed, np.full(n, 20.0), np.zeros(n, int), -np.ones(n, int),
+                           -np.ones(n, int), np.zeros(n), -np.ones((n, 48), int))
+    chain = embedding._limb_chains(problem)[0]
+    sets = embedding._limb_sets(problem, contour, np.full(n, 20.0), conf, chain, params)
+    for j in range(n):
+        if j in chain:
+            assert len(sets[j]) > 5 and np.allclose(sets[j].positions[0], placed[j])
+        elif problem.rigid[j]:
+            snapped = placed[sol.joint_parent[j]] + problem.link_offset[j]
+            got = sets[j].positions
+            assert np.any(np.all(np.isclose(got, placed[j]), axis=1))
+            assert np.any(np.all(np.isclose(got, snapped), axis=1))
+        else:
+            assert len(sets[j]) == 1 and np.allclose(sets[j].positions[0], placed[j])

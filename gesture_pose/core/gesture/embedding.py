@@ -412,16 +412,21 @@ def _limb_sets(problem, contour: list[JointCandidates], mid_r: np.ndarray,
     placements fit equally well; the cheapest by distance from the chain's parent left a
     hand's cap out for the elbow's outer arc) and a grid of ``limb_grid`` points across
     the reach (occlusion candidates), all within reach of the chain's parent (its links'
-    lengths, 1.2 times, and two steps).
+    lengths, 1.2 times, and two steps, along the chain). A rigid joint (a hip or shoulder
+    head, a clavicle's tail) may stay where it is or move to its offset from its parent as
+    placed: the search's rigid offsets are soft, and with only the offsets (the first
+    version) the re-solve could not keep the solution as it was.
     """
     eps = problem.drawing.epsilon
+    par = problem.solving.joint_parent
     top = int(chain[0])
-    anchor = conf.positions[problem.solving.joint_parent[top]]
+    anchor = conf.positions[par[top]]
     sets = [conf.take(np.array([j])) for j in range(problem.solving.n_joints)]
-    reach = 2 * eps
+    reaches = {int(par[top]): 2 * eps}
     cell = params.coarse_cell * eps
     for j in chain:
-        reach += 1.2 * problem.link_length[j]
+        reach = reaches[int(par[j])] + 1.2 * problem.link_length[j]
+        reaches[int(j)] = reach
         spacing = max(2 * cell, reach / params.limb_grid)
         pool = contour[j].take(np.flatnonzero(
             np.linalg.norm(contour[j].positions - anchor, axis=1) <= reach))
@@ -433,6 +438,12 @@ def _limb_sets(problem, contour: list[JointCandidates], mid_r: np.ndarray,
         grid = grid.take(np.flatnonzero(np.linalg.norm(grid.positions - anchor, axis=1)
                                         <= reach))
         sets[j] = _unique(JointCandidates.concat([sets[j], here, near, grid]))
+    # Rigid joints may stay where they are or sit at their offsets from their parents'
+    # candidates (the search's offsets are soft: a chest's shoulders can lie a little off
+    # it, and an arm fits again only from the shoulder put back).
+    moved = _with_rigid(problem, sets, params.rigid_turns, params.rigid_search)
+    for j in np.flatnonzero(problem.rigid):
+        sets[j] = _unique(JointCandidates.concat([sets[j], moved[j]]))
     return sets
 
 
@@ -444,12 +455,11 @@ def _limb_resolves(problem, base, contour: list[JointCandidates], mid_r: np.ndar
     naturalness triplets: a limb it folds onto one contour (a raised forearm laid back
     along the upper arm: the raised arm seen obliquely, 11.7% of the height off at its
     worst joint, 3.8 after) stays folded when the right placement was never a fine
-    candidate. Here each free
-    chain (:func:`_limb_chains`: elbow, wrist and hand; knee, ankle and foot; neck and
-    head) is solved by the DP with triplets over wide candidate sets (:func:`_limb_sets`)
-    while every other joint keeps its placement, and replaces the solution by
-    :func:`_limb_accepts`. The chains are swept ``limb_resolves`` times (a second sweep
-    changed none of the 48 drawings measured in docs/gesture.md).
+    candidate. Here each free chain (:func:`_limb_chains`: elbow, wrist and hand; knee,
+    ankle and foot; neck and head) is solved by the DP with triplets over wide candidate
+    sets (:func:`_limb_sets`) while every other joint keeps its placement, and replaces
+    the solution by :func:`_limb_accepts`. The chains are swept ``limb_resolves`` times
+    (a second sweep changed none of the 48 drawings measured in docs/gesture.md).
 
     Returns:
         ``(configuration, number of re-solves kept)``.
@@ -461,7 +471,6 @@ def _limb_resolves(problem, base, contour: list[JointCandidates], mid_r: np.ndar
         changed = False
         for chain in _limb_chains(problem):
             sets = _limb_sets(problem, contour, mid_r, conf, chain, params)
-            sets = _with_rigid(problem, sets, params.rigid_turns, params.rigid_search)
             labels, _ = solve_tree(build_energy(problem, sets, cache=cache))
             new = configuration(sets, labels)
             a, e = assign_contours(base, new), joint_energy(base, new)[0]
