@@ -128,12 +128,20 @@ def limb_flips(model: PoseModel, x: np.ndarray, bounds: np.ndarray, stick: Stick
                camera: Camera) -> np.ndarray:
     """The depth interpretations one limb away from pose ``x``: a local move.
 
-    Each liftable bone is flipped to the other side of the sphere of its length together
-    with the lifted bones it carries: a forearm or a shin alone (pointing away from the
-    eye instead of towards it, the elbow or knee kept), a whole arm or leg about its
-    shoulder or hip. The flipped bones are aimed as in :func:`depth_flips` (whose full
-    enumeration includes these, but re-aims every limb and is screened before it is
-    refined); every other gene keeps its value.
+    Each liftable bone is aimed at the other side of the sphere of its length together
+    with the lifted bones it carries: a whole arm or leg about its shoulder or hip, or a
+    forearm or a shin alone about its elbow or knee. The flipped bones are aimed as in
+    :func:`depth_flips` (whose full enumeration includes these, but re-aims every limb
+    and is screened before it is refined), within their joint ranges; every other gene
+    keeps its value. A whole limb turns to the other side of the eye ray, its ball
+    joint's limits possibly stopping it short. A forearm or shin alone only turns its
+    hinge, in the plane the parent's kept twist gives it: when that plane and the
+    hinge's range hold the flipped direction its end gets there, otherwise the hinge
+    stops at its limit and the move is a nudge that the solver's short refinement
+    (``solve._flip_descent``, 10 evaluations) carries on. On the ranking test's pose
+    the right wrist moves 0.178 of the 0.185 m the flip asks in depth; the left wrist
+    0.046 of 0.463 m and the left ankle 0.029 of 0.745 m, 98 and 113 pixels off their
+    drawn points.
 
     Args:
         model: Genes -> bones.

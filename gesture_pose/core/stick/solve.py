@@ -6,9 +6,9 @@
    character's size (or the depth of the pinned contacts).
 3. Normalize the drawing (Section 4.1.3).
 4. Genetic search over the pose genes (population 1024), the depth interpretations of
-   the best individuals, a local search flipping one limb at a time in depth, then
-   L-BFGS-B refinement of several distinct good candidates with the collision energy
-   (Eq. 11).
+   the best individuals, a local search flipping one limb at a time in depth (only with
+   environment pins or a seat), then L-BFGS-B refinement of several distinct good
+   candidates with the collision energy (Eq. 11).
 5. Per suggestion: hands and feet resting on the environment are turned to a
    collision-free orientation and pinned joints are placed exactly on their targets.
 
@@ -442,7 +442,8 @@ def _flip_descent(objective: StickObjective, candidates: list[RefineResult],
     plausible than the best by more than :data:`FLIP_MARGIN` of its score; the next round
     starts from the new best. A flip within ``apart`` of a candidate already refined (a
     bone drawn at full length has its near and far ends together; a bone flipped back)
-    is not refined.
+    is not refined. :func:`solve_stick` runs it only with environment pins or a seat,
+    which fix the body's depth (without them the flips slid the body along the eye ray).
 
     Args:
         objective: The energy.
