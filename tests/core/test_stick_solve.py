@@ -394,3 +394,36 @@ def test_contact_dot_chooses_the_seat():
     assert with_dot.seat is not None
     assert env.object_names[with_dot.seat.object_index] == "chair"
     assert without.seat is None  # the drawn pelvis is over the floor in front of the chair
+
+
+def test_limb_flips_run_only_when_pins_or_a_seat_fix_the_depth(monkeypatch):
+    # Without environment pins or a seat nothing fixes the body's depth and the more
+    # plausible flips slid it along the eye ray: the limb-flip search is skipped.
+    import gesture_pose.core.stick.solve as solve_module
+    calls = []
+    original = solve_module._flip_descent
+
+    def counted(*args, **kwargs):
+        calls.append(len(args[1]))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(solve_module, "_flip_descent", counted)
+    sk, fig, cam, stick, pins, _ = _stand_problem()
+    env = chair_env()
+    seat_px = cam.project(np.array([[0.0, 0.15, 0.45 + 0.06]]))
+    dotted = StickFigure(stick.joint_names, stick.points, stick.present, stick.parents,
+                         seat_px)
+    small = dict(seed=0, n_suggestions=1, ga=GAConfig(population=128, max_generations=3),
+                 refine_iterations=10)
+    runs = {"free": StickInput(sk, cam, stick=stick, environment=env, **small),
+            "pinned": StickInput(sk, cam, stick=stick, environment=env, env_pins=pins,
+                                 **small),
+            "seated": StickInput(sk, cam, stick=dotted, environment=env, use_contact=True,
+                                 **small)}
+    seen = {}
+    for name, inp in runs.items():
+        calls.clear()
+        res = solve_stick(inp)
+        seen[name] = (len(calls), res.seat is not None)
+        assert all(n > 0 for n in calls)  # given the refined candidates
+    assert seen == {"free": (0, False), "pinned": (1, False), "seated": (1, True)}
