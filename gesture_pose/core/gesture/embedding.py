@@ -412,10 +412,11 @@ def _limb_sets(problem, contour: list[JointCandidates], mid_r: np.ndarray,
     placements fit equally well; the cheapest by distance from the chain's parent left a
     hand's cap out for the elbow's outer arc) and a grid of ``limb_grid`` points across
     the reach (occlusion candidates), all within reach of the chain's parent (its links'
-    lengths, 1.2 times, and two steps, along the chain). A rigid joint (a hip or shoulder
-    head, a clavicle's tail) may stay where it is or move to its offset from its parent as
-    placed: the search's rigid offsets are soft, and with only the offsets (the first
-    version) the re-solve could not keep the solution as it was.
+    lengths, 1.2 times, and two steps, along the chain). Every rigid joint of the skeleton
+    (a hip or shoulder head, a clavicle's tail) may stay where it is or move to its offset
+    from its parent's candidates (a clavicle's tail from its head's offset placement, not
+    from the head as placed): the search's rigid offsets are soft, and with only the
+    offsets (the first version) the re-solve could not keep the solution as it was.
     """
     eps = problem.drawing.epsilon
     par = problem.solving.joint_parent
@@ -457,7 +458,8 @@ def _limb_resolves(problem, base, contour: list[JointCandidates], mid_r: np.ndar
     worst joint, 3.8 after) stays folded when the right placement was never a fine
     candidate. Here each free chain (:func:`_limb_chains`: elbow, wrist and hand; knee,
     ankle and foot; neck and head) is solved by the DP with triplets over wide candidate
-    sets (:func:`_limb_sets`) while every other joint keeps its placement, and replaces
+    sets (:func:`_limb_sets`) while every other free joint keeps its placement (rigid
+    joints may also snap to their offsets), and replaces
     the solution by :func:`_limb_accepts`. The chains are swept ``limb_resolves`` times
     (a second sweep changed none of the 48 drawings measured in docs/gesture.md).
 

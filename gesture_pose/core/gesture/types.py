@@ -33,8 +33,9 @@ class SolvingSkeleton:
         rest_joints: Rest (bind-pose) world positions of the joints, ``(J, 3)``, world units.
         excluded: Full-skeleton indices of the deforming bones left out (they follow their
             parents), shape ``(k,)``.
-        extends: Joints continued by excluded bones (a hand tail followed by fingers), so
-            the drawn shape goes on past them, ``(J,)`` bool.
+        extends: Joints the drawn shape goes on past, ``(J,)`` bool: continued by
+            excluded bones (a hand tail followed by fingers), or a root with one child
+            whose rigidly hung branches reach beyond it (``solving.branches_past_root``).
     """
 
     bones: np.ndarray
@@ -80,7 +81,7 @@ class SolvingSkeleton:
         """Joints where the drawn shape ends, ``(J,)`` bool.
 
         These are the joints of degree one in the joint tree (leaves, and a root with a
-        single child) that no excluded bone continues.
+        single child) that the drawn shape does not go on past (see ``extends``).
         """
         degree = (self.joint_parent >= 0).astype(int)
         np.add.at(degree, self.joint_parent[self.joint_parent >= 0], 1)
