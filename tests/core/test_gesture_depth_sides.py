@@ -6,11 +6,12 @@ import numpy as np
 
 from gesture_pose.core.camera import Camera
 from gesture_pose.core.gesture.depth import DepthOptions, energies, solve_pose3d, start, twist
+from gesture_pose.core.gesture.depth.regularity import spine_chain
 from gesture_pose.core.gesture.depth.synthetic import project_embedding, solving_skeleton
 from gesture_pose.core.gesture.embedding import posed_joints
 from gesture_pose.core.rotations import exp_map
 from gesture_pose.core.skeleton import Pose, Skeleton
-from tests.core.fixtures import frame_along, front_camera, tree_skeleton, turned_about_x
+from tests.core.fixtures import frame_along, front_camera, turned_about_x
 
 FORWARD = np.array([0.0, 1.0, 0.0])  # front_camera's depth axis (away from the viewer)
 
@@ -59,24 +60,78 @@ def test_the_legs_are_the_limbs_below_the_hips():
         f"{n}.{side}" for n in ("thigh", "shin", "foot") for side in "LR"}
 
 
+def _bust() -> Skeleton:
+    """A bust: a torso from its bottom (z 1.0, the rig's lowest point) to the chest
+    (1.45), a neck and a head above, and arms held out sideways from shoulder joints beside
+    the chest, its only left/right pair."""
+    heads = np.array([[0, 0, 1.0], [0, 0, 1.45], [0, 0, 1.6], [0.15, 0, 1.45],
+                      [0.45, 0, 1.45], [-0.15, 0, 1.45], [-0.45, 0, 1.45]], float)
+    tails = np.array([[0, 0, 1.45], [0, 0, 1.6], [0, 0, 1.8], [0.45, 0, 1.45],
+                      [0.75, 0, 1.45], [-0.45, 0, 1.45], [-0.75, 0, 1.45]], float)
+    frames = np.stack([frame_along(t - h, 0.1 * i)
+                       for i, (h, t) in enumerate(zip(heads, tails, strict=True))])
+    return Skeleton(names=("torso", "neck", "head", "upper_arm.L", "forearm.L",
+                           "upper_arm.R", "forearm.R"),
+                    parents=np.array([-1, 0, 1, 0, 3, 0, 5]), rest_heads=heads,
+                    rest_tails=tails, rest_frames=frames,
+                    inherit_rotation=np.ones(7, bool),
+                    connected=np.array([False, True, True, False, True, False, True]),
+                    deform=np.ones(7, bool))
+
+
+def _with_floor_root(sk: Skeleton) -> Skeleton:
+    """``sk`` under a ``root`` bone from the floor (0, 0, 0) up to its root bone's head,
+    connected to it (an FBX or Unreal rig's deform root)."""
+    top = sk.rest_heads[0]
+    heads = np.vstack([[0.0, 0.0, 0.0], sk.rest_heads])
+    tails = np.vstack([top, sk.rest_tails])
+    frames = np.concatenate([frame_along(top, 0.0)[None], sk.rest_frames])
+    parents = np.r_[-1, sk.parents + 1]
+    parents[1] = 0
+    connected = np.r_[False, sk.connected]
+    connected[1] = True
+    n = sk.n_bones + 1
+    return Skeleton(names=("root", *sk.names), parents=parents, rest_heads=heads,
+                    rest_tails=tails, rest_frames=frames, inherit_rotation=np.ones(n, bool),
+                    connected=connected, deform=np.ones(n, bool))
+
+
 def test_a_bust_has_no_legs():
-    """The tree skeleton's only pair, its arms, hangs from the top of its axis (z 1.0 and
-    1.05 against the root's 0 to the neck's 1.5): a bust. By tree depth alone (the pair
-    nearest the root) the arms would take the legs' rules; they take none."""
-    sk = tree_skeleton()
+    """The bust's only pair, its arms, hangs from the top of its axis (z 1.45 against
+    the torso's bottom at 1.0 to the head's top at 1.8), and they do not reach down to
+    the torso's bottom (the rig's lowest point): a bust, not a figure on a floor root. By
+    tree depth alone (the pair nearest the root) the arms would take the legs' rules;
+    they take none."""
+    sk = _bust()
     s = solving_skeleton(sk)
     assert len(start._first_pairs(s))  # the arms are the pair nearest the root
+    np.testing.assert_array_equal(start.body_axis(s), spine_chain(s, True))
     assert len(start.leg_pairs(s)) == 0
     assert not start.leg_bones(s).any()
     assert not start.thigh_bones(s).any()
-    # The same arms turned to hang from the bottom of the axis are legs.
-    low = Skeleton(names=sk.names, parents=sk.parents,
-                   rest_heads=sk.rest_heads * [1, 1, -1], rest_tails=sk.rest_tails * [1, 1, -1],
-                   rest_frames=sk.rest_frames, inherit_rotation=sk.inherit_rotation,
-                   connected=sk.connected, deform=sk.deform)
-    s_low = solving_skeleton(low)
-    assert {low.names[b] for b, leg in zip(s_low.bones, start.leg_bones(s_low), strict=True)
-            if leg} == {"arm.L", "fore.L", "arm.R", "fore.R"}
+
+
+def test_a_root_bone_from_the_floor_is_not_part_of_the_body():
+    """An FBX or Unreal rig's root bone from the floor (0, 0, 0) up to the pelvis put the
+    axis' middle at 0.85 m, below the hips (1.0 m): the legs went unfound, and the leg
+    stretched back under a body folded forward started (and was solved) in front,
+    -0.423 m deep against the truth's +0.423. The legs reach down to the root's height:
+    it stands on the floor, and the axis starts at the pelvis, where the legs hang."""
+    sk = _with_floor_root(_legged_figure())
+    s = solving_skeleton(sk)
+    assert s.rest_joints[spine_chain(s, True)[0], 2] == 0.0
+    assert s.rest_joints[start.body_axis(s)[0], 2] == 1.0
+    np.testing.assert_array_equal(start.leg_pairs(s), start._first_pairs(s))
+    assert {sk.names[b] for b, leg in zip(s.bones, start.leg_bones(s), strict=True)
+            if leg} == {"thigh.L", "thigh.R", "shin.L", "shin.R"}
+    arms = _with_floor_root(_figure_with_arms())
+    s2 = solving_skeleton(arms)
+    assert {arms.names[b] for b, leg in zip(s2.bones, start.leg_bones(s2), strict=True)
+            if leg} == {f"{n}.{side}" for n in ("thigh", "shin", "foot") for side in "LR"}
+    pose = turned_about_x(sk, Pose.identity(sk.n_bones), ((1, 120.0), (3, -50.0), (4, -120.0)))
+    got, truth = _leg_depth(sk, pose, front_camera(ortho=True), "thigh.L")
+    assert truth > 0.4  # 0.423: away from the viewer
+    assert abs(got - truth) < 0.03
 
 
 def test_a_leg_stretched_back_under_a_body_folded_forward_starts_behind_it():
@@ -280,6 +335,70 @@ def test_the_front_is_the_characters_not_the_views():
         np.testing.assert_allclose(front, [0.0, -1.0, 0.0], atol=1e-9)
         view = start.front_direction(s, s.rest_joints, frame)
         assert float(view @ [0.0, 0.0, 1.0]) > 0.3  # 0.34 / 0.71 / 0.94
+
+
+def _turned_rig(sk: Skeleton, rot: np.ndarray) -> Skeleton:
+    """``sk`` with its rest pose turned by ``rot`` (as its armature object's rotation
+    puts the rest joints the reader gives in world space)."""
+    return Skeleton(names=sk.names, parents=sk.parents, rest_heads=sk.rest_heads @ rot.T,
+                    rest_tails=sk.rest_tails @ rot.T, rest_frames=rot @ sk.rest_frames,
+                    inherit_rotation=sk.inherit_rotation, connected=sk.connected,
+                    deform=sk.deform)
+
+
+def test_a_character_lying_at_rest_takes_its_front_from_its_own_up():
+    """The legged figure's object turned -90 degrees about x: it lies on its back, its
+    chest facing +Z, seen from above. Blender's +Z as the rest up put its front towards
+    its feet (-y). Sitting up 75 degrees with the left knee pulled up (hip flexed 120
+    degrees), the thigh points at the viewer: with +Z its carried front said away
+    (thigh +0.231 m deep for the truth's -0.318, joints 0.185 m off on average); with the
+    object's up the solve is the unturned figure's through a front camera, turned."""
+    rot = exp_map(np.array([np.radians(-90.0), 0.0, 0.0]))
+    up = rot @ [0.0, 0.0, 1.0]  # the object's z axis: +y
+    flat = _legged_figure()
+    sk = _turned_rig(flat, rot)
+    s = solving_skeleton(sk)
+    target = np.array([0.0, 0.8, 0.0])
+    cam = Camera.look_at(target + [0.0, 0.0, 6.0], target, up=(0.0, 1.0, 0.0),
+                         ortho_scale=3.0)
+    frame = energies.view_frame(cam, s.rest_joints.mean(axis=0))
+    np.testing.assert_allclose(start.front_direction(s, s.rest_joints, frame, up),
+                               [0.0, 0.0, 1.0], atol=1e-9)
+    np.testing.assert_allclose(start.front_direction(s, s.rest_joints, frame, start.REST_UP),
+                               [0.0, -1.0, 0.0], atol=1e-9)  # towards its feet
+    turns = ((0, 75.0), (2, -120.0), (3, -75.0))
+    pose = turned_about_x(sk, Pose.identity(sk.n_bones), turns)
+    away = -np.array([0.0, 0.0, 1.0])  # from the viewer above
+    k = [sk.names[b] for b in s.bones].index("thigh.L")
+    h, t = s.head_joint[k], s.tail_joint[k]
+    emb = project_embedding(sk, s, pose, cam)
+    truth = posed_joints(s, sk, pose)
+    assert float((truth[t] - truth[h]) @ away) < -0.3  # -0.318: towards the viewer
+    X = solve_pose3d(sk, emb, cam, options=DepthOptions(rest_up=tuple(up))).joints3d
+    assert float((X[t] - X[h]) @ away) < -0.2  # -0.231 (the drawn length allows 0.318)
+    level = front_camera(ortho=True)
+    s0 = solving_skeleton(flat)
+    pose0 = turned_about_x(flat, Pose.identity(flat.n_bones), turns)
+    X0 = solve_pose3d(flat, project_embedding(flat, s0, pose0, level), level).joints3d
+    np.testing.assert_allclose(X, X0 @ rot.T, atol=1e-6)
+    wrong = solve_pose3d(sk, emb, cam).joints3d  # +Z: the front towards its feet
+    assert float((wrong[t] - wrong[h]) @ away) > 0.2
+
+
+def test_the_rigs_up_is_the_object_axis_its_legs_hang_along():
+    """``rig_up``: the lying figure's object z axis (+y, along its legs from feet to hips);
+    +Z for a standing figure whose object z axis is level (an imported Y-up rig, its
+    object turned 90 degrees about x: the Adventurer's points along +y) and for a bust,
+    whose arms held out decide neither."""
+    rot = exp_map(np.array([np.radians(-90.0), 0.0, 0.0]))
+    lying = solving_skeleton(_turned_rig(_legged_figure(), rot))
+    np.testing.assert_allclose(start.rig_up(lying, 100.0 * rot[:, 2]), [0.0, 1.0, 0.0],
+                               atol=1e-12)
+    standing = solving_skeleton(_legged_figure())
+    np.testing.assert_array_equal(start.rig_up(standing, [0.0, 100.0, 0.0]), [0, 0, 1])
+    np.testing.assert_array_equal(start.rig_up(standing, [0.0, 0.0, 0.01]), [0, 0, 1])
+    bust = solving_skeleton(_turned_rig(_bust(), rot))
+    np.testing.assert_array_equal(start.rig_up(bust, rot[:, 2]), [0, 0, 1])
 
 
 def test_a_leg_stretched_back_seen_from_above_starts_behind_the_body():

@@ -15,14 +15,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import bpy
 import numpy as np
 
 from ...core.camera import Camera
 from ...core.exceptions import InputError
-from ...core.gesture.depth import DepthOptions, Pose3DResult, flip_depth, solve_pose3d
+from ...core.gesture.depth import DepthOptions, Pose3DResult, flip_depth, solve_pose3d, start
 from ...core.gesture.types import Embedding2D
 from ..operator_utils import (
     GesturePoseOperatorMixin,
@@ -93,6 +93,10 @@ def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
     tick(0.8)
     t1 = time.perf_counter()
     lock, limits, axes = data.axis_settings()
+    # The rest joints are world positions: a rig lying at rest carries its up with its
+    # object (an imported Y-up rig's object is turned to stand: start.rig_up tells them).
+    up = start.rig_up(embedding.solving, data.matrix_world[:3, 2])
+    options = replace(options or DepthOptions(), rest_up=tuple(float(v) for v in up))
     result = solve_pose3d(data.skeleton, embedding, camera, data.pose, lock_rotation=lock,
                           ik_limits=limits, pinned=data.pinned, options=options,
                           limit_axes=axes)

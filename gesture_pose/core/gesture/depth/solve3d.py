@@ -206,7 +206,7 @@ class DepthOptions:
         pelvis_front: The thighs (:func:`.start.thigh_bones`: the top bones of the limbs
             hanging from the lower half of the body's axis) whose depth side is the
             default guess take the character's front (``(left - right) x up`` with the
-            rest pose's up, :data:`.start.REST_UP`, not the view's) as their pelvis's
+            rig's rest up, ``rest_up``, not the view's) as their pelvis's
             start rotation carries it (:func:`.start.pelvis_front_sides`; ours) when it
             leaves the view plane by at least this much (a unit vector's depth
             component); 0 leaves them to the bind pose's front. A body bent far forward
@@ -260,6 +260,13 @@ class DepthOptions:
             holds the limb there (a test arm swung 40 degrees away from the viewer
             through a perspective camera, which the start puts in front: the hand's depth
             0.44 / 0.53 / 0.69 m off at 0 / 0.3 / 1).
+        rest_up: The rig's rest up, world axes (the rest joints are world positions;
+            Blender's +Z, the default, for a rig standing in the world at rest). It
+            gives the character's front for ``pelvis_front`` and tells the legs
+            (:func:`.start.leg_pairs`): a character lying at rest (its object turned 90
+            degrees) had its front read towards its feet with +Z. The Pose operator
+            passes :func:`.start.rig_up` (the object's z axis when the legs hang along
+            it; an imported Y-up rig's object z axis is level).
     """
 
     alpha: float = 200.0
@@ -306,6 +313,7 @@ class DepthOptions:
     pelvis_front: float = 0.3
     arm_bend: bool = False
     lifted_reference: float = 0.3
+    rest_up: tuple[float, float, float] = (0.0, 0.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -758,7 +766,8 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
                                       opts.natural_bend, limit_axes,
                                       link_agreement[tails] if setup.facing > 0 else None,
                                       opts.bind_side, opts.carried_turn, opts.turn_start,
-                                      opts.pelvis_front, opts.arm_bend)
+                                      opts.pelvis_front, opts.arm_bend,
+                                      np.asarray(opts.rest_up, float))
     if opts.start_sides and keep is not None:
         # Only the bones the start lifts: pinned ones stay at their bind rotation. Sides
         # that are the default guess (the character's front) count too: on the exact

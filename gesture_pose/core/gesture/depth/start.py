@@ -52,26 +52,92 @@ def _first_pairs(solving: SolvingSkeleton) -> np.ndarray:
     return pairs[level == level.min()]
 
 
-#: The rest pose's up, world axes: Blender's +Z, on which a rig stands at rest.
+#: The default rest up, world axes: Blender's +Z, the rig's own up when it stands in the
+#: world at rest. The rest joints are world positions: an armature object turned to lay
+#: its rig down turns that up with it (:func:`rig_up`, ``DepthOptions(rest_up=)``).
 REST_UP = np.array([0.0, 0.0, 1.0])
 
 
-def leg_pairs(solving: SolvingSkeleton, up: np.ndarray = REST_UP) -> np.ndarray:
-    """The left/right joint pairs the legs hang from (hips), shape ``(p, 2)`` (ours).
+def rig_up(solving: SolvingSkeleton, object_up: np.ndarray) -> np.ndarray:
+    """The rig's rest up, world axes: Blender's +Z or its armature object's z axis (ours).
 
-    The limbs' top pairs (a pair whose joints' parent joint is in no pair: hips,
-    shoulders, not knees or elbows) that lie at or below the middle of the body's axis
-    (the root's unsided chain up to the head, :func:`.regularity.spine_chain`) along the
-    rest pose's ``up``, and of those the ones nearest the root. Tree depth alone would
-    take the arms of a bust (a rig whose only pairs hang from the chest) for legs.
+    The rest joints are world positions. A rig modelled standing whose object is turned
+    to lie at rest carries its up with the object's z axis; an imported rig (FBX, glTF)
+    whose armature data is Y-up stands with its object turned 90 degrees about x, its
+    object's z axis level (the Adventurer's points along world +Y). Of the two, the one
+    the limbs below the left/right pairs nearest the root (:func:`_first_pairs`: legs)
+    hang down along, from those joints to their limbs' ends, by at least 0.7 of their
+    hang and more than along the other; +Z when they lie within 6 degrees of each other
+    or the limbs decide neither (a bust's arms held out sideways).
 
     Args:
         solving: The solving skeleton.
-        up: The rest pose's up, world axes, ``(3,)``.
+        object_up: The armature object's z axis, world axes, ``(3,)`` (any length).
 
     Returns:
-        Joint pairs, ``(p, 2)`` int; none on a rig whose paired limbs all hang from the
-        upper half of its axis (a bust) or whose sided bones form no pairs.
+        The unit up, world axes, ``(3,)``.
+    """
+    obj = np.asarray(object_up, float)
+    obj = obj / max(float(np.linalg.norm(obj)), 1e-12)
+    if float(obj @ REST_UP) > 0.994:  # within 6 degrees
+        return REST_UP.copy()
+    pairs = _first_pairs(solving)
+    if not len(pairs):
+        return REST_UP.copy()
+    jp = np.asarray(solving.joint_parent)
+    rest = np.asarray(solving.rest_joints, float)
+    has_child = np.zeros(len(jp), bool)
+    has_child[jp[jp >= 0]] = True
+    hang = np.zeros(3)
+    for j in pairs.ravel():
+        ends = [k for k in np.flatnonzero(~has_child) if int(j) in ancestors(jp, int(k))]
+        if ends:
+            hang += rest[int(j)] - rest[ends].mean(axis=0)
+    size = float(np.linalg.norm(hang))
+    if size > 1e-12 and float(hang @ obj) >= max(0.7 * size, float(hang @ REST_UP)):
+        return obj
+    return REST_UP.copy()
+
+
+def body_axis(solving: SolvingSkeleton, up: np.ndarray = REST_UP) -> np.ndarray:
+    """The joints of the body's axis, root end first, shape ``(k,)`` (ours).
+
+    The root's unsided chain up to the head (:func:`.regularity.spine_chain`), without a
+    floor root: a root link from the floor the feet stand on up to the pelvis (an FBX or
+    Unreal rig's ``root`` bone) would put the axis' middle at half the height, below the
+    hips. The root joint is on that floor when the paired limbs reach down to its height
+    (their lowest joint within a tenth of the rig's height along ``up`` of it); the axis
+    then starts at the first of its joints a limb's top pair (:func:`leg_pairs`) hangs
+    from. A bust's root, the torso's bottom, is not on such a floor: its arms, hanging
+    from the chest, do not reach down to it.
+
+    Args:
+        solving: The solving skeleton.
+        up: The rig's rest up, world axes, ``(3,)``.
+
+    Returns:
+        Joint indices along the axis, ``(k,)`` int.
+    """
+    chain = spine_chain(solving, through_branches=True)
+    pairs = _top_pairs(solving)
+    if not len(pairs) or len(chain) < 2:
+        return chain
+    height = np.asarray(solving.rest_joints, float) @ np.asarray(up, float)
+    tenth = 0.1 * float(height.max() - height.min())
+    reach = float(height[symmetric_joint_pairs(solving)].min())  # the limbs' lowest
+    if abs(reach - float(height[chain[0]])) > tenth:
+        return chain  # the limbs do not reach the root: it is the body's own
+    jp = np.asarray(solving.joint_parent)
+    position = {int(j): i for i, j in enumerate(chain)}
+    hung = [position[j] for j in (_hanging_joint(jp, int(a), position) for a in pairs[:, 0])
+            if j is not None]
+    return chain[min(hung):] if hung else chain
+
+
+def _top_pairs(solving: SolvingSkeleton) -> np.ndarray:
+    """The limbs' top left/right pairs (hips, shoulders, not knees), shape ``(p, 2)``.
+
+    A top pair's joints have parent joints in no pair.
     """
     pairs = symmetric_joint_pairs(solving)
     if not len(pairs):
@@ -80,10 +146,41 @@ def leg_pairs(solving: SolvingSkeleton, up: np.ndarray = REST_UP) -> np.ndarray:
     paired = set(int(j) for j in pairs.ravel())
     top = np.array([int(jp[a]) not in paired and int(jp[b]) not in paired for a, b in pairs],
                    dtype=bool)
+    return pairs[top]
+
+
+def _hanging_joint(joint_parent: np.ndarray, joint: int, chain: dict[int, int]) -> int | None:
+    """The nearest ancestor of ``joint`` among the keys of ``chain`` (None: no such)."""
+    k = int(joint_parent[joint])
+    while k >= 0 and k not in chain:
+        k = int(joint_parent[k])
+    return k if k >= 0 else None
+
+
+def leg_pairs(solving: SolvingSkeleton, up: np.ndarray = REST_UP) -> np.ndarray:
+    """The left/right joint pairs the legs hang from (hips), shape ``(p, 2)`` (ours).
+
+    The limbs' top pairs (a pair whose joints' parent joint is in no pair: hips,
+    shoulders, not knees or elbows) that lie at or below the middle of the body's axis
+    (the root's unsided chain up to the head, a floor root left out: :func:`body_axis`)
+    along the rig's rest ``up``, and of those the ones nearest the root. Tree depth alone
+    would take the arms of a bust (a rig whose only pairs hang from the chest) for legs.
+
+    Args:
+        solving: The solving skeleton.
+        up: The rig's rest up, world axes, ``(3,)``.
+
+    Returns:
+        Joint pairs, ``(p, 2)`` int; none on a rig whose paired limbs all hang from the
+        upper half of its axis (a bust) or whose sided bones form no pairs.
+    """
+    pairs = _top_pairs(solving)
+    if not len(pairs):
+        return pairs
+    jp = np.asarray(solving.joint_parent)
     height = np.asarray(solving.rest_joints, float) @ np.asarray(up, float)
-    axis = height[spine_chain(solving, through_branches=True)]
-    low = height[pairs].max(axis=1) <= 0.5 * (axis.min() + axis.max()) + 1e-9
-    pairs = pairs[top & low]
+    axis = height[body_axis(solving, up)]
+    pairs = pairs[height[pairs].max(axis=1) <= 0.5 * (axis.min() + axis.max()) + 1e-9]
     if not len(pairs):
         return pairs
     depth = np.array([len(ancestors(jp, int(j))) for j in pairs[:, 0]])
@@ -97,8 +194,8 @@ def front_direction(solving: SolvingSkeleton, rest_joints: np.ndarray, frame: Vi
     A rig's ``.L`` side is the character's own left: with the first joint of each of the
     left/right pairs nearest the root (:func:`_first_pairs`) on the left, the character
     faces ``(left - right) x up``. With the view's up (the default) that is the front
-    only for a level camera; the character's own is the rest pose's up
-    (:data:`REST_UP`): a humanoid's chest, a quadruped's head.
+    only for a level camera; the character's own is the rig's rest up (its armature
+    object's z axis, :data:`REST_UP` unrotated): a humanoid's chest, a quadruped's head.
 
     Args:
         solving: The solving skeleton.
@@ -429,7 +526,7 @@ def thigh_bones(solving: SolvingSkeleton, up: np.ndarray = REST_UP) -> np.ndarra
 
     Args:
         solving: The solving skeleton.
-        up: The rest pose's up, world axes, ``(3,)``.
+        up: The rig's rest up, world axes, ``(3,)``.
 
     Returns:
         ``(m,)`` bool over the solving bones.
@@ -445,7 +542,7 @@ def leg_bones(solving: SolvingSkeleton, up: np.ndarray = REST_UP) -> np.ndarray:
 
     Args:
         solving: The solving skeleton.
-        up: The rest pose's up, world axes, ``(3,)``.
+        up: The rig's rest up, world axes, ``(3,)``.
 
     Returns:
         ``(m,)`` bool over the solving bones.
@@ -490,7 +587,7 @@ def pelvis_front_sides(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFram
         fixed: Solving bones left at their bind rotation, ``(m,)`` bool.
         open_: Solving bones whose side this decides, ``(m,)`` bool.
         front: The character's front in ``bind``'s rest frames, world axes, ``(3,)``
-            (:func:`front_direction` with the rest pose's up; reversed for a character
+            (:func:`front_direction` with the rig's rest up; reversed for a character
             drawn turned around when ``bind`` is not turned).
         min_slope: Smallest depth component of the carried unit front.
         min_lift: Smallest depth change over length of a decided bone.
@@ -530,7 +627,7 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                 ik_limits: np.ndarray | None = None, natural_bend: bool = True,
                 min_bend: float = np.radians(3.0), min_lift: float = 0.1,
                 limit_axes: np.ndarray | None = None, min_off: float = 0.15,
-                arms: bool = False) -> np.ndarray:
+                arms: bool = False, up: np.ndarray = REST_UP) -> np.ndarray:
     """Depth sides of bones at a joint the rig restricts or bends (knees, elbows).
 
     A drawn bone's two depth sides bend its joint with its parent in opposite senses. With
@@ -580,6 +677,8 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         min_off: Smallest difference of the two sides' ``|cos|`` to the hinge axis that
             decides between two natural bends.
         arms: Use the rest bend of the other limbs' middle bones (elbows) too.
+        up: The rig's rest up, world axes, ``(3,)``, which tells the legs
+            (:func:`leg_pairs`).
 
     Returns:
         The sides, ``(m,)``.
@@ -597,9 +696,9 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                       for k, b in enumerate(jmap.bones)])
 
     if not arms and len(symmetric_joint_pairs(s)):
-        hinge &= leg_bones(s)
+        hinge &= leg_bones(s, up)
     index = {int(b): i for i, b in enumerate(jmap.bones)}
-    hips = set(int(j) for j in leg_pairs(s).ravel())
+    hips = set(int(j) for j in leg_pairs(s, up).ravel())
 
     def decide(k: int, bone: int, sides: np.ndarray, depth: float, state: PoseState,
                pose: Pose) -> float | None:
@@ -657,8 +756,8 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                natural_bend: bool = False, limit_axes: np.ndarray | None = None,
                agreement: np.ndarray | None = None, min_agreement: float = 0.1,
                carried_turn: float = 0.0, turn: bool = False,
-               pelvis_front: float = 0.0, arm_bend: bool = False
-               ) -> tuple[Pose, np.ndarray]:
+               pelvis_front: float = 0.0, arm_bend: bool = False,
+               rest_up: np.ndarray | None = None) -> tuple[Pose, np.ndarray]:
     """The lifted start pose and the depth side of each solving bone.
 
     Args:
@@ -692,16 +791,21 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         turn: For a character drawn turned around, aim the bones from the bind pose
             turned half round (:func:`turned_bind`).
         pelvis_front: The thighs (:func:`thigh_bones`) whose side is still a guess take
-            the character's front (with the rest pose's up) as their pelvis carries it
+            the character's front (with ``rest_up``) as their pelvis carries it
             when it leaves the view plane by at least this much
             (:func:`pelvis_front_sides`); 0 leaves them to the default.
         arm_bend: With ``natural_bend``, the elbows bend as at rest too, not only the
             knees (:func:`hinge_signs` ``arms``).
+        rest_up: The rig's rest up, world axes, ``(3,)``: its armature object's z axis
+            (the rest joints are world positions); None for :data:`REST_UP`. It gives the
+            character's front for ``pelvis_front`` and tells the legs (:func:`leg_pairs`).
 
     Returns:
         ``(pose, signs)``: the start pose and the sides, ``(m,)``.
     """
     jm, f = jmap, frame
+    up = REST_UP if rest_up is None else np.asarray(rest_up, float)
+    up = up / max(float(np.linalg.norm(up)), 1e-12)
     fixed = (np.zeros(jm.n_bones, bool) if pinned is None
              else np.asarray(pinned, bool)[jm.bones])
     if keep is not None:
@@ -724,12 +828,11 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     turned = facing < 0 and turn
     if turned:
         bind = turned_bind(skeleton, jm, f, bind, fixed)
-    facing_dir = (front_direction(sk, sk.rest_joints, f, REST_UP) if pelvis_front > 0.0
-                  else None)
+    facing_dir = front_direction(sk, sk.rest_joints, f, up) if pelvis_front > 0.0 else None
     if facing_dir is not None:
         # The turned bind pose carries the front round with it; the unturned one does not.
         signs = pelvis_front_sides(skeleton, jm, f, embedding, bind, signs, fixed,
-                                   ~kept & thigh_bones(sk),
+                                   ~kept & thigh_bones(sk, up),
                                    facing_dir if turned else facing * facing_dir,
                                    pelvis_front)
     if carried_turn > 0.0:
@@ -737,7 +840,7 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                               carried_turn)
     if natural_bend or (ik_limits is not None and np.any(np.isfinite(ik_limits))):
         signs = hinge_signs(skeleton, jm, f, embedding, bind, signs, fixed, ik_limits,
-                            natural_bend, limit_axes=limit_axes, arms=arm_bend)
+                            natural_bend, limit_axes=limit_axes, arms=arm_bend, up=up)
     pose = lifted_pose(skeleton, jm, f, embedding, bind, signs, fixed)
     if not order:
         return pose, signs
