@@ -34,6 +34,19 @@ def chain_skeleton(points: np.ndarray, rolls: np.ndarray | None = None) -> Skele
     )
 
 
+def bone_skeleton(names: tuple[str, ...], parents, heads, tails, connected,
+                  roll_step: float = 0.0) -> Skeleton:
+    """A deforming skeleton from bone heads and tails (``(n, 3)`` each, metres); bone ``i``
+    is rolled by ``i * roll_step`` radians about itself."""
+    heads, tails = np.asarray(heads, float), np.asarray(tails, float)
+    frames = np.stack([frame_along(t - h, roll_step * i)
+                       for i, (h, t) in enumerate(zip(heads, tails, strict=True))])
+    n = len(heads)
+    return Skeleton(names=tuple(names), parents=np.asarray(parents), rest_heads=heads,
+                    rest_tails=tails, rest_frames=frames, inherit_rotation=np.ones(n, bool),
+                    connected=np.asarray(connected, bool), deform=np.ones(n, bool))
+
+
 def tree_skeleton() -> Skeleton:
     """A small Y-shaped tree: root, then two branches of two bones, one unconnected."""
     heads = np.array([[0, 0, 0], [0, 0, 1], [0.1, 0, 1], [0.6, 0, 1.0], [-0.1, 0, 1.05],

@@ -14,7 +14,7 @@ from gesture_pose.core.gesture.embedding import posed_joints
 from gesture_pose.core.gesture.types import Embedding2D
 from gesture_pose.core.rotations import exp_map, log_map
 from gesture_pose.core.skeleton import Pose, Skeleton
-from tests.core.fixtures import frame_along, front_camera, turned_about_x
+from tests.core.fixtures import bone_skeleton, frame_along, front_camera, turned_about_x
 
 FORWARD = np.array([0.0, 1.0, 0.0])  # front_camera's depth axis
 
@@ -26,14 +26,9 @@ def _turned_tree() -> Skeleton:
                       [-0.6, 0, 1.05]], float)
     tails = np.array([[0, 0, 1], [0, 0, 1.5], [0.6, 0, 1], [1.1, 0, 1.0], [-0.6, 0, 1.05],
                       [-1.0, -0.3, 1.05]], float)
-    frames = np.stack([frame_along(t - h, 0.2 * i)
-                       for i, (h, t) in enumerate(zip(heads, tails, strict=True))])
-    return Skeleton(names=("root", "neck", "arm.L", "fore.L", "arm.R", "fore.R"),
-                    parents=np.array([-1, 0, 0, 2, 0, 4]), rest_heads=heads,
-                    rest_tails=tails, rest_frames=frames,
-                    inherit_rotation=np.ones(6, bool),
-                    connected=np.array([False, True, False, True, False, True]),
-                    deform=np.ones(6, bool))
+    return bone_skeleton(("root", "neck", "arm.L", "fore.L", "arm.R", "fore.R"),
+                         [-1, 0, 0, 2, 0, 4], heads, tails,
+                         [False, True, False, True, False, True], roll_step=0.2)
 
 
 def _raised_left_arm(sk: Skeleton) -> Pose:

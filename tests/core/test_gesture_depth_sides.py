@@ -11,7 +11,7 @@ from gesture_pose.core.gesture.depth.synthetic import project_embedding, solving
 from gesture_pose.core.gesture.embedding import posed_joints
 from gesture_pose.core.rotations import exp_map
 from gesture_pose.core.skeleton import Pose, Skeleton
-from tests.core.fixtures import frame_along, front_camera, turned_about_x
+from tests.core.fixtures import bone_skeleton, frame_along, front_camera, turned_about_x
 
 FORWARD = np.array([0.0, 1.0, 0.0])  # front_camera's depth axis (away from the viewer)
 
@@ -24,14 +24,9 @@ def _legged_figure() -> Skeleton:
                       [0.15, 0, 0.55], [-0.15, 0, 0.55]], float)
     tails = np.array([[0, 0, 1.15], [0, 0, 1.7], [0.15, 0, 0.55], [-0.15, 0, 0.55],
                       [0.15, 0, 0.1], [-0.15, 0, 0.1]], float)
-    frames = np.stack([frame_along(t - h, 0.1 * i)
-                       for i, (h, t) in enumerate(zip(heads, tails, strict=True))])
-    return Skeleton(names=("hips", "spine", "thigh.L", "thigh.R", "shin.L", "shin.R"),
-                    parents=np.array([-1, 0, 0, 0, 2, 3]), rest_heads=heads,
-                    rest_tails=tails, rest_frames=frames,
-                    inherit_rotation=np.ones(6, bool),
-                    connected=np.array([False, True, False, False, True, True]),
-                    deform=np.ones(6, bool))
+    return bone_skeleton(("hips", "spine", "thigh.L", "thigh.R", "shin.L", "shin.R"),
+                         [-1, 0, 0, 0, 2, 3], heads, tails,
+                         [False, True, False, False, True, True], roll_step=0.1)
 
 
 def _arabesque(sk: Skeleton) -> Pose:
