@@ -459,9 +459,9 @@ def _limb_resolves(problem, base, contour: list[JointCandidates], mid_r: np.ndar
     candidate. Here each free chain (:func:`_limb_chains`: elbow, wrist and hand; knee,
     ankle and foot; neck and head) is solved by the DP with triplets over wide candidate
     sets (:func:`_limb_sets`) while every other free joint keeps its placement (rigid
-    joints may also snap to their offsets), and replaces
-    the solution by :func:`_limb_accepts`. The chains are swept ``limb_resolves`` times
-    (a second sweep changed none of the 48 drawings measured in docs/gesture.md).
+    joints may also snap to their offsets), and replaces the solution by
+    :func:`_limb_accepts`. The chains are swept ``limb_resolves`` times (a second sweep
+    changed none of the 48 drawings measured in docs/gesture.md).
 
     Returns:
         ``(configuration, number of re-solves kept)``.
