@@ -144,11 +144,19 @@ def test_a_leg_stretched_back_under_a_body_folded_forward_starts_behind_it():
     truth_dz = float((truth[knee] - truth[hip]) @ FORWARD)
     assert truth_dz > 0.4  # 0.42: away from the viewer
     res = solve_pose3d(sk, emb, cam)
-    bind_front = solve_pose3d(sk, emb, cam, options=DepthOptions(pelvis_front=0.0))
+    bind_front = solve_pose3d(sk, emb, cam, options=DepthOptions(pelvis_front=0.0,
+                                                                   leg_limits=False))
     got = float((res.joints3d[knee] - res.joints3d[hip]) @ FORWARD)
     before = float((bind_front.joints3d[knee] - bind_front.joints3d[hip]) @ FORWARD)
     assert before < -0.3  # towards the viewer: the bind pose's front
     assert abs(got - truth_dz) < 0.03
+    # The hip's range alone also brings it back (DepthOptions.leg_limits): the thigh is
+    # flexed 50 degrees from the rest direction its pelvis, folded 120 degrees forward,
+    # carries; its mirror image towards the viewer would be extended 170 degrees behind it.
+    ranges = solve_pose3d(sk, emb, cam, options=DepthOptions(pelvis_front=0.0))
+    assert "thigh.L" in ranges.resided
+    ranged = float((ranges.joints3d[knee] - ranges.joints3d[hip]) @ FORWARD)
+    assert abs(ranged - truth_dz) < 0.03
     # Both legs come back (every leg joint within 1 mm; 85 cm and 1.7 m off at the left
     # knee and ankle with the bind pose's front). The spine's tail is 4.6 cm off either
     # way: its side is not the legs' rule's.
@@ -409,8 +417,9 @@ def test_a_leg_stretched_back_seen_from_above_starts_behind_the_body():
     emb = project_embedding(sk, s, pose, cam)
     truth = posed_joints(s, sk, pose)
     off = {}
-    for share in (0.3, 0.0):
-        X = solve_pose3d(sk, emb, cam, options=DepthOptions(pelvis_front=share)).joints3d
+    for share in (0.3, 0.0):  # the start's rule alone (the legs' ranges after it: 0.100)
+        X = solve_pose3d(sk, emb, cam, options=DepthOptions(pelvis_front=share,
+                                                            leg_limits=False)).joints3d
         off[share] = float(np.linalg.norm(X - X[0] - truth + truth[0], axis=1).mean())
     assert off[0.0] > 0.2
     assert off[0.3] < 0.01

@@ -757,7 +757,8 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                agreement: np.ndarray | None = None, min_agreement: float = 0.1,
                carried_turn: float = 0.0, turn: bool = False,
                pelvis_front: float = 0.0, arm_bend: bool = False,
-               rest_up: np.ndarray | None = None) -> tuple[Pose, np.ndarray]:
+               rest_up: np.ndarray | None = None, forced: np.ndarray | None = None
+               ) -> tuple[Pose, np.ndarray]:
     """The lifted start pose and the depth side of each solving bone.
 
     Args:
@@ -799,6 +800,9 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         rest_up: The rig's rest up, world axes, ``(3,)``: its armature object's z axis
             (the rest joints are world positions); None for :data:`REST_UP`. It gives the
             character's front for ``pelvis_front`` and tells the legs (:func:`leg_pairs`).
+        forced: Depth sides that replace the rules' where non-zero, ``(m,)`` (ours: the
+            legs' sides a first solve broke the joints' ranges with,
+            :func:`.plausibility.leg_sides`); the greedy flips leave them.
 
     Returns:
         ``(pose, signs)``: the start pose and the sides, ``(m,)``.
@@ -841,6 +845,10 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     if natural_bend or (ik_limits is not None and np.any(np.isfinite(ik_limits))):
         signs = hinge_signs(skeleton, jm, f, embedding, bind, signs, fixed, ik_limits,
                             natural_bend, limit_axes=limit_axes, arms=arm_bend, up=up)
+    chosen = np.zeros(jm.n_bones, bool)
+    if forced is not None:
+        chosen = (np.asarray(forced, float) != 0.0) & ~fixed
+        signs[chosen] = np.asarray(forced, float)[chosen]
     pose = lifted_pose(skeleton, jm, f, embedding, bind, signs, fixed)
     if not order:
         return pose, signs
@@ -855,7 +863,7 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                            axis=1) / f.scale
     lengths = skeleton.lengths[jm.bones]
     lift = np.sqrt(np.maximum(lengths**2 - drawn**2, 0.0))
-    lifted = np.flatnonzero((drawn < 0.98 * lengths) & ~fixed)
+    lifted = np.flatnonzero((drawn < 0.98 * lengths) & ~fixed & ~chosen)
     shift = jm.moves[:, lifted].astype(float) * lift[lifted]
 
     def badness(d: np.ndarray) -> float:

@@ -1,0 +1,268 @@
+"""Which depth sides of a leg a body can take: joint-limit plausibility (ours).
+
+A drawn link fixes how far a bone leaves the view plane, not to which side (Gesture3D
+Section 7); the start picks each foreshortened bone's side by rules (:mod:`.start`), and
+the solve ends on the side it starts on. A leg's sides are not free, though: the knee is
+a hinge that flexes one way only, the hip rotates the thigh about its own axis by about 45
+degrees either way and extends it behind the pelvis by about 30, and the ankle holds the
+foot near the shin's front. Mirroring one bone of a drawn leg about the view plane keeps
+the drawing and usually breaks one of these. This module scores the 2, 4 or 8 mirror
+combinations of a solved leg's lifted bones (thigh, shin, foot) against those ranges, on
+the pose the first solve reached, whose pelvis is read from the drawn hips (the start's
+pelvis keeps its bind twist and faced 44-128 degrees off on 14 of the 40 CMU poses, the
+solved one within 15 on 33), and returns the sides of the most plausible one when it
+is clearly more plausible than the solved one.
+
+The ranges are anatomical, read in the rig's own terms: the front is the character's
+(:func:`.start.front_direction`), carried by the solved pelvis; a straight rest leg's
+thigh hangs along the carried rest direction; the foot keeps its rest angle to the shin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...skeleton import Pose, Skeleton
+from ..types import SolvingSkeleton
+from . import start
+
+
+@dataclass(frozen=True)
+class LegLimits:
+    """Joint ranges of a leg, degrees, and the decision thresholds.
+
+    Attributes:
+        hip_twist: Largest rotation of the thigh about its own axis away from the front
+            its pelvis carries (the knee's plane of flexion), degrees.
+        hip_extension: Largest swing of the thigh behind its carried rest direction, in
+            the pelvis's plane of flexion, degrees.
+        ankle: Largest angle between the foot and its rest direction relative to the
+            shin's front, degrees.
+        twist_share: Weight of the twist itself, within the range (degrees times the
+            sine of the knee's bend), which tells apart combinations all within range.
+        margin: Smallest cost difference, degrees, for a combination to replace the
+            solved one.
+        thigh_tolerance: A thigh keeps its solved side when some combination that keeps
+            it costs at most this much, degrees: the thigh's side has the most support
+            (the pelvis's front, :func:`.start.pelvis_front_sides`).
+    """
+
+    hip_twist: float = 45.0
+    hip_extension: float = 30.0
+    ankle: float = 60.0
+    twist_share: float = 0.1
+    margin: float = 15.0
+    thigh_tolerance: float = 10.0
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle between two vectors, degrees."""
+    cos = float(a @ b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-12)
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def _swing(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    """The smallest rotation taking direction ``a`` to ``b``, ``(3, 3)`` (None: opposite)."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    v = np.cross(a, b)
+    c = float(a @ b)
+    if c < -0.99:
+        return None
+    vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + vx + vx @ vx / (1.0 + c)
+
+
+def _unit_perp(v: np.ndarray, axis: np.ndarray) -> np.ndarray | None:
+    """The unit component of ``v`` orthogonal to the unit ``axis`` (None: along it)."""
+    p = v - float(v @ axis) * axis
+    n = float(np.linalg.norm(p))
+    return p / n if n > 1e-9 * max(float(np.linalg.norm(v)), 1e-12) else None
+
+
+@dataclass(frozen=True)
+class LegRest:
+    """A leg's rest geometry in its pelvis's frame, carried to the solved pelvis.
+
+    Attributes:
+        thigh: The thigh's rest direction carried by the solved pelvis, ``(3,)``.
+        front: The character's front carried by the solved pelvis, unit, ``(3,)``.
+        foot: The foot's rest direction in the shin's rest frame (along the shin, along
+            its front, across), unit, ``(3,)``; None without a foot.
+    """
+
+    thigh: np.ndarray
+    front: np.ndarray
+    foot: np.ndarray | None
+
+
+def leg_cost(thigh: np.ndarray, shin: np.ndarray, foot: np.ndarray | None, rest: LegRest,
+             limits: LegLimits = LegLimits()) -> float:
+    """How far a leg's bone directions lie outside its joints' ranges, degrees.
+
+    The hip: the thigh's swing behind its carried rest direction beyond
+    ``hip_extension`` (in the plane of that direction and the carried front, weighted by
+    the thigh's share in that plane). The knee: the knee's front (``-(shin ⟂ thigh)``,
+    where a flexed shin goes) against the carried front swung onto the thigh (zero hip
+    rotation); beyond ``hip_twist`` the shin is ``2 asin(sin(bend) sin(excess / 2))`` from
+    the nearest direction the hip's rotation allows, plus ``twist_share`` of the twist
+    times ``sin(bend)``. The ankle: the foot against its rest direction in the shin's frame
+    (the shin's front the knee's flexion carries) beyond ``ankle``.
+
+    Args:
+        thigh: Thigh vector, world units, ``(3,)``.
+        shin: Shin vector, ``(3,)``.
+        foot: Foot vector, ``(3,)`` (None: not scored).
+        rest: The leg's carried rest geometry.
+        limits: The ranges.
+
+    Returns:
+        The cost, degrees (0 within every range and straight).
+    """
+    down = rest.thigh / np.linalg.norm(rest.thigh)
+    ahead = _unit_perp(rest.front, down)
+    cost = 0.0
+    if ahead is not None:
+        a, b = float(thigh @ ahead), float(thigh @ down)
+        extension = float(np.degrees(np.arctan2(-a, b)))
+        share = float(np.hypot(a, b) / np.linalg.norm(thigh))
+        cost += max(0.0, extension - limits.hip_extension) * share
+    swing = _swing(rest.thigh, thigh)
+    if swing is None:
+        return cost  # the thigh turned right round: its swing's axis is a guess
+    t = thigh / np.linalg.norm(thigh)
+    expected = _unit_perp(swing @ rest.front, t)
+    knee = _unit_perp(-shin, t)
+    bend = np.radians(_angle(thigh, shin))
+    if expected is not None and knee is not None:
+        twist = float(np.degrees(np.arctan2(np.cross(expected, knee) @ t, expected @ knee)))
+        excess = np.radians(max(abs(twist) - limits.hip_twist, 0.0))
+        cost += float(np.degrees(2.0 * np.arcsin(min(1.0, np.sin(bend) * np.sin(excess / 2)))))
+        cost += limits.twist_share * abs(twist) * float(np.sin(bend))
+    if foot is not None and rest.foot is not None:
+        front = knee if knee is not None and bend >= np.radians(15.0) else expected
+        carry = _swing(thigh, shin)
+        if front is not None and carry is not None:
+            s = shin / np.linalg.norm(shin)
+            f = _unit_perp(carry @ front, s)
+            if f is not None:
+                want = rest.foot[0] * s + rest.foot[1] * f + rest.foot[2] * np.cross(s, f)
+                cost += max(0.0, _angle(foot, want) - limits.ankle)
+    return cost
+
+
+def leg_chains(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
+               up: np.ndarray) -> list[tuple[int, ...]]:
+    """The legs' solving bones, thigh first: ``(thigh, shin)`` or ``(thigh, shin, foot)``.
+
+    The thighs are :func:`.start.thigh_bones`; each next bone is the only solving child
+    connected to the previous one.
+
+    Args:
+        skeleton: The full skeleton.
+        solving: The solving skeleton.
+        bones: Full-skeleton index of each solving bone, ``(m,)``.
+        up: The rig's rest up, world axes, ``(3,)``.
+
+    Returns:
+        One tuple of solving-bone indices per leg.
+    """
+    parent = np.asarray(solving.parent)
+
+    def child(k: int) -> int | None:
+        kids = [c for c in np.flatnonzero(parent == k) if skeleton.connected[int(bones[c])]]
+        return int(kids[0]) if len(kids) == 1 else None
+
+    chains = []
+    for thigh in np.flatnonzero(start.thigh_bones(solving, up)):
+        shin = child(int(thigh))
+        if shin is None:
+            continue
+        foot = child(shin)
+        chains.append((int(thigh), shin) if foot is None else (int(thigh), shin, foot))
+    return chains
+
+
+def _leg_rest(skeleton: Skeleton, chain: tuple[int, ...], bones: np.ndarray,
+              carry: np.ndarray, front: np.ndarray) -> LegRest:
+    """The leg's rest geometry carried by the pelvis's world rotation ``carry``."""
+    rest = skeleton.rest_tails - skeleton.rest_heads
+    thigh, shin = rest[int(bones[chain[0]])], rest[int(bones[chain[1]])]
+    foot = None
+    if len(chain) > 2:
+        s = shin / np.linalg.norm(shin)
+        knee = _unit_perp(-shin, thigh / np.linalg.norm(thigh))
+        ahead = knee if knee is not None and _angle(thigh, shin) >= 15.0 else \
+            _unit_perp(front, s)
+        if ahead is not None:
+            f = rest[int(bones[chain[2]])]
+            f = f / np.linalg.norm(f)
+            foot = np.array([f @ s, f @ ahead, f @ np.cross(s, ahead)])
+    return LegRest(carry @ thigh, carry @ front, foot)
+
+
+def leg_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
+              forward: np.ndarray, pose: Pose, front: np.ndarray, up: np.ndarray,
+              lifted: np.ndarray, limits: LegLimits = LegLimits(),
+              min_slope: float = 0.1) -> np.ndarray:
+    """Depth sides for the legs whose solved sides break their joints' ranges (ours).
+
+    Each leg's lifted bones (``lifted``, leaving the view plane by at least ``min_slope``
+    of their length in ``pose``) may be mirrored about the view plane through their heads,
+    which keeps the drawing (orthographically). Of those combinations the one of least
+    :func:`leg_cost` is taken, keeping the thigh's side when a combination that keeps it
+    costs at most ``thigh_tolerance``, ties to the fewest mirrored bones, when it costs at
+    least ``margin`` less than the solved one.
+
+    Args:
+        skeleton: The full skeleton.
+        solving: The solving skeleton.
+        bones: Full-skeleton index of each solving bone, ``(m,)``.
+        forward: The view direction (depth grows along it), ``(3,)``.
+        pose: The solved pose.
+        front: The character's front in the rest pose, unit, world axes, ``(3,)``
+            (:func:`.start.front_direction`).
+        up: The rig's rest up, world axes, ``(3,)``.
+        lifted: Solving bones the start lifted (the others keep their sides), ``(m,)``
+            bool.
+        limits: The ranges and thresholds.
+        min_slope: Smallest depth change over length of a bone that may be mirrored.
+
+    Returns:
+        The new depth side of each solving bone (+1 away from the viewer, -1 towards), 0
+        where unchanged, ``(m,)``.
+    """
+    forward = np.asarray(forward, float) / np.linalg.norm(forward)
+    state = skeleton.forward(pose)
+    sides = np.zeros(len(bones))
+    for chain in leg_chains(skeleton, solving, bones, up):
+        full = [int(bones[k]) for k in chain]
+        pelvis = int(skeleton.parents[full[0]])
+        if pelvis < 0:
+            continue
+        carry = state.frames[pelvis] @ skeleton.rest_frames[pelvis].T
+        rest = _leg_rest(skeleton, chain, bones, carry, np.asarray(front, float))
+        vectors = [state.tails[b] - state.heads[b] for b in full]
+        free = [bool(lifted[k]) and abs(float(v @ forward)) >= min_slope * np.linalg.norm(v)
+                for k, v in zip(chain, vectors, strict=True)]
+        options = []
+        for mask in range(1 << len(chain)):
+            bits = [(mask >> i) & 1 == 1 for i in range(len(chain))]
+            if any(b and not f for b, f in zip(bits, free, strict=True)):
+                continue
+            v = [x - 2.0 * float(x @ forward) * forward if b else x
+                 for x, b in zip(vectors, bits, strict=True)]
+            cost = leg_cost(v[0], v[1], v[2] if len(v) > 2 else None, rest, limits)
+            options.append((cost, sum(bits), bits, v))
+        solved = options[0][0]  # mask 0: as solved
+        keep_thigh = [o for o in options if not o[2][0]]
+        pool = keep_thigh if min(o[0] for o in keep_thigh) <= limits.thigh_tolerance \
+            else options
+        cost, _, bits, v = min(pool, key=lambda o: (round(o[0], 6), o[1]))
+        if cost <= solved - limits.margin:
+            for k, b, x in zip(chain, bits, v, strict=True):
+                if b:
+                    sides[k] = 1.0 if float(x @ forward) > 0 else -1.0
+    return sides

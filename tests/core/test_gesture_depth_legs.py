@@ -1,0 +1,103 @@
+"""The legs' joint ranges choosing between mirror images (ours, depth.plausibility)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gesture_pose.core.gesture.depth import DepthOptions, plausibility, solve_pose3d
+from gesture_pose.core.gesture.depth.synthetic import project_embedding, solving_skeleton
+from gesture_pose.core.gesture.embedding import posed_joints
+from gesture_pose.core.skeleton import Pose
+from tests.core.fixtures import front_camera, turned_about_x
+from tests.core.test_gesture_depth_sides import FORWARD, _legged_figure
+
+FRONT = np.array([0.0, -1.0, 0.0])  # the legged figure faces the front camera
+DOWN = np.array([0.0, 0.0, -1.0])
+
+
+def _rest(foot: np.ndarray | None = None) -> plausibility.LegRest:
+    """A leg hanging straight down from an upright pelvis facing -y."""
+    return plausibility.LegRest(DOWN, FRONT, foot)
+
+
+def test_a_knee_bent_forwards_is_outside_the_hips_range():
+    """The thigh straight down, the shin 60 degrees back (flexed): within every range.
+    Its mirror image about the view plane (60 degrees forward) needs the hip turned 180
+    degrees about the thigh: 2 asin(sin 60 sin 67.5) = 106 degrees from what the range
+    allows, plus a tenth of 180 sin 60."""
+    shin = np.array([0.0, np.sin(np.radians(60)), -np.cos(np.radians(60))])
+    flexed = plausibility.leg_cost(DOWN, shin, None, _rest())
+    mirrored = plausibility.leg_cost(DOWN, shin * [1, -1, 1], None, _rest())
+    assert flexed == pytest.approx(0.0, abs=1e-9)
+    expected = 2 * np.degrees(np.arcsin(np.sin(np.radians(60)) * np.sin(np.radians(67.5))))
+    assert mirrored == pytest.approx(expected + 18.0 * np.sin(np.radians(60)))
+    # A straight leg has no knee front: any twist is within range.
+    assert plausibility.leg_cost(DOWN, DOWN, None, _rest()) == pytest.approx(0.0)
+
+
+def test_the_hip_extends_30_degrees_and_the_foot_keeps_its_angle():
+    """A straight thigh 50 degrees back costs the 20 beyond the hip's extension, 50
+    degrees forward nothing; a foot pointing back from a shin whose rest foot points
+    forward costs the 120 beyond the ankle's 60 (180 from its rest angle)."""
+    back = np.array([0.0, np.sin(np.radians(50)), -np.cos(np.radians(50))])
+    assert plausibility.leg_cost(back, back, None, _rest()) == pytest.approx(20.0)
+    assert plausibility.leg_cost(back * [1, -1, 1], back * [1, -1, 1], None,
+                                 _rest()) == pytest.approx(0.0)
+    foot = np.array([0.0, 1.0, 0.0])  # the rest foot along the shin's front
+    assert plausibility.leg_cost(DOWN, DOWN, FRONT, _rest(foot)) == pytest.approx(0.0)
+    assert plausibility.leg_cost(DOWN, DOWN, -FRONT, _rest(foot)) == pytest.approx(120.0)
+
+
+@pytest.mark.parametrize("ortho", [True, False])
+def test_a_knee_bent_back_on_a_rig_with_straight_legs_is_solved_flexed(ortho):
+    """The legged figure's legs are straight at rest, so no rest bend decides its knees
+    and the start puts a foreshortened shin towards the character's front (the viewer):
+    the left knee bent 60 degrees back was solved bent 60 degrees forward (0.39 m the
+    wrong way, 0.78 m off at the ankle; 0.81 through the perspective camera). On the
+    solved pose that knee is outside the hip's range, its mirror image within it: the
+    second solve, started there, gives the truth."""
+    sk = _legged_figure()
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=ortho)
+    pose = turned_about_x(sk, Pose.identity(sk.n_bones), ((4, 60.0),))
+    emb = project_embedding(sk, s, pose, cam)
+    truth = posed_joints(s, sk, pose)
+    k = list(s.bones).index(4)
+    knee, ankle = s.head_joint[k], s.tail_joint[k]
+    depth = float((truth[ankle] - truth[knee]) @ FORWARD)
+    assert depth == pytest.approx(0.45 * np.sin(np.radians(60)))  # away from the viewer
+
+    def solve(options: DepthOptions) -> tuple[float, float, tuple[str, ...]]:
+        res = solve_pose3d(sk, emb, cam, options=options)
+        off = np.linalg.norm(res.joints3d - res.joints3d[0] - truth + truth[0], axis=1)
+        return (float((res.joints3d[ankle] - res.joints3d[knee]) @ FORWARD),
+                float(off.max()), res.resided)
+
+    old, old_off, old_resided = solve(DepthOptions(leg_limits=False))
+    new, new_off, resided = solve(DepthOptions())
+    assert old < -0.35 and old_off > 0.75 and old_resided == ()
+    assert new == pytest.approx(depth, abs=1e-3)
+    assert new_off < 1e-3
+    assert resided == ("shin.L",)
+
+
+def test_a_plausible_solve_is_left_as_it_is():
+    """On the truth itself (both knees bent back, the left thigh raised 10 degrees
+    forward) no combination of mirror images is more plausible by the margin: no side
+    changes. With the left shin mirrored (the knee bent 60 degrees forward) only that
+    shin is put back, away from the viewer."""
+    sk = _legged_figure()
+    s = solving_skeleton(sk)
+    pose = turned_about_x(sk, Pose.identity(sk.n_bones),
+                          ((2, -10.0), (4, 80.0), (5, 30.0)))
+    lifted = np.ones(len(s.bones), bool)
+    sides = plausibility.leg_sides(sk, s, np.asarray(s.bones), FORWARD, pose, FRONT,
+                                   np.array([0.0, 0.0, 1.0]), lifted)
+    np.testing.assert_array_equal(sides, 0.0)
+    mirrored = turned_about_x(sk, pose, ((4, -140.0),))
+    sides = plausibility.leg_sides(sk, s, np.asarray(s.bones), FORWARD, mirrored, FRONT,
+                                   np.array([0.0, 0.0, 1.0]), lifted)
+    k = list(s.bones).index(4)
+    assert sides[k] == 1.0
+    assert np.count_nonzero(sides) == 1
