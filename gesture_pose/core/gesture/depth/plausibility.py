@@ -9,8 +9,8 @@ foot near the shin's front. Mirroring one bone of a drawn leg about the view pla
 the drawing and usually breaks one of these. This module scores the 2, 4 or 8 mirror
 combinations of a solved leg's lifted bones (thigh, shin, foot) against those ranges, on
 the pose the first solve reached, whose pelvis is read from the drawn hips (the start's
-pelvis keeps its bind twist and faced 44-128 degrees off on 14 of the 40 CMU poses, the
-solved one within 15 on 33), and returns the sides of the most plausible one when it
+pelvis keeps its bind twist and faced 44-128 degrees off on 16 of the 40 CMU poses, the
+solved one within 15 on 31), and returns the sides of the most plausible one when it
 is clearly more plausible than the solved one.
 
 The ranges are anatomical, read in the rig's own terms: the front is the character's

@@ -276,8 +276,8 @@ class DepthOptions:
             (:func:`.plausibility.leg_sides`; ours) and, where a combination is clearly
             more plausible than the solved one, solve again from a start on its sides.
             The start's pelvis keeps its bind twist, so its knees' rest bend and its
-            thighs' carried front read a pelvis facing far off (44-128 degrees on 14 of
-            the 40 CMU poses); the solved one faces within 15 degrees on 33. CMU poses on
+            thighs' carried front read a pelvis facing far off (44-128 degrees on 16 of
+            the 40 CMU poses); the solved one faces within 15 degrees on 31. CMU poses on
             the Adventurer (exact embeddings) 5.40 -> 4.94 % of the height (median 5.11
             -> 5.00, above 8%: 5 -> 3), the sample characters' exact embeddings 3.52 ->
             3.50, the 25 traced drawings (cached 2D fits) 6.63 -> 6.56.
