@@ -10,7 +10,7 @@ from gesture_pose.core.gesture.depth.synthetic import project_embedding, solving
 from gesture_pose.core.gesture.embedding import posed_joints
 from gesture_pose.core.skeleton import Pose
 from tests.core.fixtures import front_camera, turned_about_x
-from tests.core.test_gesture_depth_sides import FORWARD, _legged_figure
+from tests.core.test_gesture_depth_sides import FORWARD, _figure_with_arms, _legged_figure
 
 FRONT = np.array([0.0, -1.0, 0.0])  # the legged figure faces the front camera
 DOWN = np.array([0.0, 0.0, -1.0])
@@ -91,13 +91,51 @@ def test_a_plausible_solve_is_left_as_it_is():
     s = solving_skeleton(sk)
     pose = turned_about_x(sk, Pose.identity(sk.n_bones),
                           ((2, -10.0), (4, 80.0), (5, 30.0)))
-    lifted = np.ones(len(s.bones), bool)
+    movable = np.ones(len(s.bones), bool)
     sides = plausibility.leg_sides(sk, s, np.asarray(s.bones), FORWARD, pose, FRONT,
-                                   np.array([0.0, 0.0, 1.0]), lifted)
+                                   np.array([0.0, 0.0, 1.0]), movable)
     np.testing.assert_array_equal(sides, 0.0)
     mirrored = turned_about_x(sk, pose, ((4, -140.0),))
     sides = plausibility.leg_sides(sk, s, np.asarray(s.bones), FORWARD, mirrored, FRONT,
-                                   np.array([0.0, 0.0, 1.0]), lifted)
+                                   np.array([0.0, 0.0, 1.0]), movable)
     k = list(s.bones).index(4)
     assert sides[k] == 1.0
     assert np.count_nonzero(sides) == 1
+
+
+@pytest.mark.parametrize("ortho", [True, False])
+def test_a_foot_drawn_end_on_as_at_bind_is_turned_with_its_leg(ortho):
+    """The figure with arms and feet, its left thigh 20 degrees back and the knee flexed
+    120 more (the heel up behind it): the foot, which points at the viewer at bind, now
+    points away, drawn end-on as short as at bind and within 2.5% of the height of its
+    bind image, so the start keeps it at bind (side 0). On the solved leg it turns the
+    ankle 180 degrees from its rest angle; its mirror image is within range, and the
+    second solve lifts it there (largest joint error 0.61 m with the ranges off, 0.58
+    through the perspective camera; 0.23 and 0.20 now, the rest from the thigh's side,
+    which no range decides)."""
+    sk = _figure_with_arms()
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=ortho)
+    names = list(sk.names)
+    pose = turned_about_x(sk, Pose.identity(sk.n_bones),
+                          ((names.index("thigh.L"), 20.0), (names.index("shin.L"), 120.0)))
+    emb = project_embedding(sk, s, pose, cam)
+    truth = posed_joints(s, sk, pose)
+    k = list(s.bones).index(names.index("foot.L"))
+    heel, toe = s.head_joint[k], s.tail_joint[k]
+    depth = float((truth[toe] - truth[heel]) @ FORWARD)
+    assert depth > 0.18  # 0.185: away from the viewer
+
+    def solve(options: DepthOptions):
+        res = solve_pose3d(sk, emb, cam, options=options)
+        off = np.linalg.norm(res.joints3d - res.joints3d[0] - truth + truth[0], axis=1)
+        return res, float((res.joints3d[toe] - res.joints3d[heel]) @ FORWARD), float(off.max())
+
+    old, old_depth, old_off = solve(DepthOptions(leg_limits=False))
+    assert old.depth_sides[k] == 0.0  # kept at bind
+    assert old_depth < -0.18 and old_off > 0.55
+    new, new_depth, new_off = solve(DepthOptions())
+    assert "foot.L" in new.resided
+    assert new.depth_sides[k] == 1.0
+    assert new_depth == pytest.approx(depth, abs=0.005)
+    assert new_off < 0.25

@@ -7,7 +7,7 @@ a hinge that flexes one way only, the hip rotates the thigh about its own axis b
 degrees either way and extends it behind the pelvis by about 30, and the ankle holds the
 foot near the shin's front. Mirroring one bone of a drawn leg about the view plane keeps
 the drawing and usually breaks one of these. This module scores the 2, 4 or 8 mirror
-combinations of a solved leg's lifted bones (thigh, shin, foot) against those ranges, on
+combinations of a solved leg's bones (thigh, shin, foot) against those ranges, on
 the pose the first solve reached, whose pelvis is read from the drawn hips (the start's
 pelvis keeps its bind twist and faced 44-128 degrees off on 16 of the 40 CMU poses, the
 solved one within 15 on 31), and returns the sides of the most plausible one when it
@@ -205,16 +205,17 @@ def _leg_rest(skeleton: Skeleton, chain: tuple[int, ...], bones: np.ndarray,
 
 def leg_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
               forward: np.ndarray, pose: Pose, front: np.ndarray, up: np.ndarray,
-              lifted: np.ndarray, limits: LegLimits = LegLimits(),
+              movable: np.ndarray, limits: LegLimits = LegLimits(),
               min_slope: float = 0.1) -> np.ndarray:
     """Depth sides for the legs whose solved sides break their joints' ranges (ours).
 
-    Each leg's lifted bones (``lifted``, leaving the view plane by at least ``min_slope``
-    of their length in ``pose``) may be mirrored about the view plane through their heads,
-    which keeps the drawing (orthographically). Of those combinations the one of least
-    :func:`leg_cost` is taken, keeping the thigh's side when a combination that keeps it
-    costs at most ``thigh_tolerance``, ties to the fewest mirrored bones, when it costs at
-    least ``margin`` less than the solved one.
+    Each leg's ``movable`` bones leaving the view plane by at least ``min_slope`` of their
+    length in ``pose`` may be mirrored about the view plane through their heads, which
+    keeps the drawing (orthographically); bones drawn as at bind too (a foot drawn
+    end-on looks the same pointing at the viewer, as at bind, or away). Of those
+    combinations the one of least :func:`leg_cost` is taken, keeping the thigh's side when
+    a combination that keeps it costs at most ``thigh_tolerance``, ties to the fewest
+    mirrored bones, when it costs at least ``margin`` less than the solved one.
 
     Args:
         skeleton: The full skeleton.
@@ -225,8 +226,7 @@ def leg_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
         front: The character's front in the rest pose, unit, world axes, ``(3,)``
             (:func:`.start.front_direction`).
         up: The rig's rest up, world axes, ``(3,)``.
-        lifted: Solving bones the start lifted (the others keep their sides), ``(m,)``
-            bool.
+        movable: Solving bones whose side may change (not pinned), ``(m,)`` bool.
         limits: The ranges and thresholds.
         min_slope: Smallest depth change over length of a bone that may be mirrored.
 
@@ -245,7 +245,7 @@ def leg_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
         carry = state.frames[pelvis] @ skeleton.rest_frames[pelvis].T
         rest = _leg_rest(skeleton, chain, bones, carry, np.asarray(front, float))
         vectors = [state.tails[b] - state.heads[b] for b in full]
-        free = [bool(lifted[k]) and abs(float(v @ forward)) >= min_slope * np.linalg.norm(v)
+        free = [bool(movable[k]) and abs(float(v @ forward)) >= min_slope * np.linalg.norm(v)
                 for k, v in zip(chain, vectors, strict=True)]
         options = []
         for mask in range(1 << len(chain)):

@@ -280,7 +280,9 @@ class DepthOptions:
             the 40 CMU poses); the solved one faces within 15 degrees on 31. CMU poses on
             the Adventurer (exact embeddings) 5.40 -> 4.94 % of the height (median 5.11
             -> 5.00, above 8%: 5 -> 3), the sample characters' exact embeddings 3.52 ->
-            3.50, the 25 traced drawings (cached 2D fits) 6.63 -> 6.56.
+            3.48, the 25 traced drawings (cached 2D fits) 6.63 -> 6.56. Bones drawn as
+            at bind may change side too (then lifted, without E_b): a foot drawn end-on
+            looks the same pointing at the viewer or away (3.50 without them).
         leg_energy_rise: The second solve is kept only if its drawing energy (E_c plus
             the weighted E_v) is at most this fraction above the first's: the ranges
             choose between mirror images the drawing tells apart poorly, not against
@@ -364,7 +366,7 @@ class Pose3DResult:
         symmetric: Left bones made symmetric with their right partners.
         timings: Seconds per stage (``"setup"``, ``"start"``, ``"sqp"``, ``"qp"``, ...).
         warnings: Human-readable notes.
-        start_sides: The depth side the start gave each solving bone (+1 away from the
+        depth_sides: The depth side the start gave each solving bone (+1 away from the
             viewer, -1 towards), 0 for bones it left at their bind rotation, ``(m,)``.
         resided: Bones whose start side the legs' joint ranges changed
             (``DepthOptions.leg_limits``).
@@ -388,7 +390,7 @@ class Pose3DResult:
     symmetric: tuple[str, ...]
     timings: dict = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
-    start_sides: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    depth_sides: np.ndarray = field(default_factory=lambda: np.zeros(0))
     resided: tuple[str, ...] = ()
 
 
@@ -422,9 +424,12 @@ class _Setup:
 
 def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pose,
            opts: DepthOptions, link_confidence: np.ndarray | None = None,
-           skip: frozenset[int] = frozenset()
+           skip: frozenset[int] = frozenset(), forced: np.ndarray | None = None
            ) -> tuple[_Setup, np.ndarray, np.ndarray, tuple[str, ...]]:
     """Drawing cues, terms and constraints (step 1 of the module docstring).
+
+    The links of the solving bones ``forced`` sets (non-zero) do not count as drawn as at
+    bind (E_b, the start's kept bones): a side the legs' ranges chose is a moved bone's.
 
     The depth orders at the indices in ``skip`` are left out: indices into the list read
     from the drawing after ``bind_orders`` filtered it (the list a first solve reports in
@@ -471,6 +476,11 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
                                         opts.bind_sigma)
     if facing < 0:
         agreement = np.zeros_like(agreement)
+    if forced is not None:
+        link_of = np.full(n_j, -1)
+        link_of[b] = np.arange(len(b))
+        agreement = agreement.copy()
+        agreement[link_of[np.asarray(s.tail_joint)[np.asarray(forced) != 0]]] = 0.0
     if opts.bind_weight > 0 and np.any(agreement > 1e-3):
         terms.append(energies.bind_term(a, b, rest_links, lengths,
                                         opts.bind_weight * agreement, n_j))
@@ -755,10 +765,15 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     up = up / max(float(np.linalg.norm(up)), 1e-12)
     frame = energies.view_frame(camera, s.rest_joints.mean(axis=0), opts.perspective)
     front = start.front_direction(s, s.rest_joints, frame, up)
-    if front is None or len(result.start_sides) != len(result.bones):
+    if front is None:
         return result
+    # Bones drawn as at bind may change side too: a foot drawn end-on looks the same
+    # pointing at the viewer (as at bind) or away; pinned bones keep theirs.
+    movable = np.ones(len(result.bones), bool)
+    if pinned is not None:
+        movable &= ~np.asarray(pinned, bool)[result.bones]
     forced = plausibility.leg_sides(skeleton, s, result.bones, frame.forward, result.pose,
-                                    front, up, result.start_sides != 0)
+                                    front, up, movable)
     if not np.any(forced):
         return result
     again = _solve_dropping(args, forced)
@@ -815,7 +830,7 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
     bones = np.asarray(embedding.solving.bones, dtype=int)
     bind = base.with_rotations(bones, np.tile(np.eye(3), (len(bones), 1, 1)))
     setup, X_rest, contacts, names = _setup(skeleton, embedding, camera, bind, opts,
-                                            link_confidence, skip)
+                                            link_confidence, skip, forced)
     embedding = setup.embedding  # the drawn joints as the 3D step reads them
     hard = [c for c in setup.order if not c.soft]  # the QPs' depth orders
     soft = np.array([c.soft for c in setup.order], dtype=bool)
@@ -838,7 +853,7 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
     lifted_bones = np.ones(len(signs), bool) if keep is None else ~np.asarray(keep, bool)
     if pinned is not None:
         lifted_bones &= ~np.asarray(pinned, bool)[setup.jmap.bones]
-    start_sides = np.where(lifted_bones, signs, 0.0)
+    depth_sides = np.where(lifted_bones, signs, 0.0)
     if opts.start_sides and keep is not None:
         # Only the bones the start lifts: pinned ones stay at their bind rotation. Sides
         # that are the default guess (the character's front) count too: on the exact
@@ -966,5 +981,5 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
         symmetric=tuple(symmetric),
         timings=timings,
         warnings=tuple(warnings),
-        start_sides=start_sides,
+        depth_sides=depth_sides,
     )

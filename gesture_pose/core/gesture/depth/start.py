@@ -802,7 +802,8 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
             character's front for ``pelvis_front`` and tells the legs (:func:`leg_pairs`).
         forced: Depth sides that replace the rules' where non-zero, ``(m,)`` (ours: the
             legs' sides a first solve broke the joints' ranges with,
-            :func:`.plausibility.leg_sides`); the greedy flips leave them.
+            :func:`.plausibility.leg_sides`); such bones are lifted even when drawn as at
+            bind (``keep``), pinned ones excepted, and the greedy flips leave them.
 
     Returns:
         ``(pose, signs)``: the start pose and the sides, ``(m,)``.
@@ -847,8 +848,11 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                             natural_bend, limit_axes=limit_axes, arms=arm_bend, up=up)
     chosen = np.zeros(jm.n_bones, bool)
     if forced is not None:
-        chosen = (np.asarray(forced, float) != 0.0) & ~fixed
+        chosen = np.asarray(forced, float) != 0.0
+        if pinned is not None:
+            chosen &= ~np.asarray(pinned, bool)[jm.bones]
         signs[chosen] = np.asarray(forced, float)[chosen]
+        fixed = fixed & ~chosen
     pose = lifted_pose(skeleton, jm, f, embedding, bind, signs, fixed)
     if not order:
         return pose, signs
