@@ -14,9 +14,9 @@ from gesture_pose.core.stick.genetic import GAConfig
 from gesture_pose.core.stick.graph import StickFigure
 from gesture_pose.core.stick.kinematics import PoseModel
 from gesture_pose.core.stick.lifting import depth_flips, limb_flips
-from gesture_pose.core.stick.objective import StickObjective, Weights
+from gesture_pose.core.stick.objective import EnvPin, StickObjective, Weights
 from gesture_pose.core.stick.ranking import foreshortening, plausibility
-from gesture_pose.core.stick.solve import StickInput, solve_stick
+from gesture_pose.core.stick.solve import StickInput, _pivot_on_pins, solve_stick
 from tests.core.test_stick_figure import humanoid_skeleton
 
 CAMERA = Camera.look_at([0.0, -4.5, 1.0], [0.0, 0.0, 1.0], width=1000, height=800)
@@ -218,6 +218,38 @@ def test_limb_flips_turn_one_limb_or_its_end_in_depth_and_keep_the_rest():
             assert reached == (group == "forearm.R")
     # The forearm's flip keeps the elbow where it was; the whole arm's moves it.
     assert not moved[1, fig.joint("elbow.L")] and moved[0, fig.joint("elbow.L")]
+
+
+def test_flips_of_a_pinned_limb_pivot_on_its_pin():
+    model = _model()
+    fig = model.figure
+    # The left leg (its ankle pinned) and the left arm bent out of the view plane.
+    x = _pose(model, {"upper_arm.L": [40, 0, 20], "forearm.L": [70],
+                      "thigh.L": [30, 10, 0], "shin.L": [20]})
+    stick, truth = _drawn(model, x)
+    a, p = fig.joint("ankle.L"), fig.joint("pelvis")
+    pin = EnvPin(a, truth[a].copy(), np.array([0.0, 0.0, 1.0]))
+    obj = dataclasses.replace(_objective(model, stick), env_pins=(pin,))
+    bounds = model.bounds(np.zeros(3), 1.0)
+    flips = limb_flips(model, x, bounds, stick, CAMERA)
+    out = _pivot_on_pins(obj, x, flips, bounds)
+    before = fig.joint_positions(*model.forward(flips)[:2])
+    after = fig.joint_positions(*model.forward(out)[:2])
+    # The whole leg's flip (row 2) brings the ankle 0.72 m nearer the eye than its pin;
+    # moved back along the pelvis' eye ray (0.73 m) the ankle is at its pin's depth to a
+    # millimetre (its sideways offset, where the hip's limits stopped the flip short of
+    # the ankle's eye ray, stays), the pelvis still on its drawn point.
+    depth = CAMERA.depth(np.array([before[2, a], after[2, a], truth[a]]))
+    assert depth[2] - depth[0] > 0.7
+    assert abs(depth[1] - depth[2]) < 0.002
+    assert np.linalg.norm(CAMERA.project(after[2, p][None]) - stick.points[p]) < 1e-6
+    assert not np.array_equal(out[2, :3], x[:3]) and np.array_equal(out[2, 3:], flips[2, 3:])
+    # Flips that leave the pinned joint where it is (the arms) are not moved.
+    still = np.linalg.norm(before[:, a] - truth[a], axis=1) < 1e-9
+    assert still[[0, 1, 4, 5]].all() and np.array_equal(out[still], flips[still])
+    # With the pelvis pinned too (lying, seated) its pin fixes the depth: nothing moves.
+    lying = dataclasses.replace(obj, env_pins=(pin, EnvPin(p, truth[p].copy(), pin.normal)))
+    assert np.array_equal(_pivot_on_pins(lying, x, flips, bounds), flips)
 
 
 def test_foreshortening_term_in_the_objective_matches_finite_differences():
