@@ -1,4 +1,4 @@
-"""Which depth sides of a leg a body can take: joint-limit plausibility (ours).
+"""Which depth sides of a leg or an arm a body can take: joint-limit plausibility (ours).
 
 A drawn link fixes how far a bone leaves the view plane, not to which side (Gesture3D
 Section 7); the start picks each foreshortened bone's side by rules (:mod:`.start`), and
@@ -16,6 +16,11 @@ is clearly more plausible than the solved one.
 The ranges are anatomical, read in the rig's own terms: the front is the character's
 (:func:`.start.front_direction`), carried by the solved pelvis; a straight rest leg's
 thigh hangs along the carried rest direction; the foot keeps its rest angle to the shin.
+
+The arms (:func:`arm_sides`): the shoulder rotates the upper arm about its axis by
+about 90 degrees either way, so the elbow's plane says less than the knee's; only an
+upper arm whose solved elbow bends beyond that range is mirrored (the start's upper
+arms have no cue but the character's front).
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...names import side_of
 from ...skeleton import Pose, Skeleton
 from ..types import SolvingSkeleton
 from . import start
@@ -265,4 +271,152 @@ def leg_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
             for k, b, x in zip(chain, bits, v, strict=True):
                 if b:
                     sides[k] = 1.0 if float(x @ forward) > 0 else -1.0
+    return sides
+
+
+@dataclass(frozen=True)
+class ArmLimits:
+    """The elbow's plane against the shoulder's rotation, degrees, and the threshold.
+
+    Attributes:
+        humeral_twist: Largest turn of the elbow's plane of flexion about the upper arm
+            away from the one the chest's front gives it (the humerus's rotation: about
+            90 degrees either way from the arm hanging with the elbow flexing forward),
+            degrees.
+        margin: Smallest cost difference, degrees, for a combination to replace the
+            solved one.
+    """
+
+    humeral_twist: float = 100.0
+    margin: float = 15.0
+
+
+def arm_cost(upper: np.ndarray, forearm: np.ndarray, down: np.ndarray, front: np.ndarray,
+             limits: ArmLimits = ArmLimits()) -> float:
+    """How far an elbow's plane lies outside the shoulder's rotation, degrees.
+
+    The elbow flexes the forearm towards the front of the upper arm. Hanging down, the
+    arm's front is the chest's; raised, the front the smallest swing from ``down`` to the
+    upper arm carries (no rotation of the humerus). The forearm's direction away from the
+    upper arm's axis, turned about it from that front by more than ``humeral_twist``, is
+    ``2 asin(sin(bend) sin(excess / 2))`` from what the rotation allows.
+
+    Args:
+        upper: Upper-arm vector, world units, ``(3,)``.
+        forearm: Forearm vector, ``(3,)``.
+        down: The chest's down (the rig's rest down carried by the chest), ``(3,)``.
+        front: The chest's front (the character's front carried by the chest), ``(3,)``.
+        limits: The range.
+
+    Returns:
+        The cost, degrees.
+    """
+    swing = _swing(down, upper)
+    if swing is None:
+        return 0.0  # the arm straight up: the swing's axis is a guess
+    t = upper / np.linalg.norm(upper)
+    expected = _unit_perp(swing @ front, t)
+    elbow = _unit_perp(forearm, t)
+    if expected is None or elbow is None:
+        return 0.0
+    twist = float(np.degrees(np.arctan2(np.cross(expected, elbow) @ t, expected @ elbow)))
+    excess = np.radians(max(abs(twist) - limits.humeral_twist, 0.0))
+    bend = np.radians(_angle(upper, forearm))
+    return float(np.degrees(2.0 * np.arcsin(min(1.0, np.sin(bend) * np.sin(excess / 2)))))
+
+
+def arm_chains(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
+               up: np.ndarray) -> list[tuple[int, int, int]]:
+    """The arms' ``(upper arm, forearm, chest)``: solving bones, the chest a full-skeleton one.
+
+    An arm ends in a sided end bone (a hand) whose parent (the forearm) and grandparent
+    (the upper arm) are sided, connected solving bones, outside the legs
+    (:func:`.start.leg_bones`); its chest is the upper arm's first unsided ancestor. Only
+    on an upright rig: its body's axis (:func:`.start.body_axis`) spans more along ``up``
+    than across (a quadruped's front legs are not arms).
+
+    Args:
+        skeleton: The full skeleton.
+        solving: The solving skeleton.
+        bones: Full-skeleton index of each solving bone, ``(m,)``.
+        up: The rig's rest up, world axes, unit, ``(3,)``.
+
+    Returns:
+        One tuple per arm.
+    """
+    parent = np.asarray(solving.parent)
+    axis = np.asarray(solving.rest_joints, float)[start.body_axis(solving, up)]
+    span = axis.max(axis=0) - axis.min(axis=0)
+    along = abs(float(span @ up))
+    if along <= float(np.linalg.norm(span - along * np.sign(span @ up) * up)):
+        return []
+    legs = start.leg_bones(solving, up)
+    chains = []
+    for end in range(len(bones)):
+        if np.any(parent == end) or legs[end] or parent[end] < 0 or parent[parent[end]] < 0:
+            continue
+        fore = int(parent[end])
+        upper = int(parent[fore])
+        full = [int(bones[k]) for k in (upper, fore, end)]
+        if any(side_of(skeleton.names[b]) is None for b in full) or not (
+                skeleton.connected[full[1]] and skeleton.connected[full[2]]):
+            continue
+        chest = int(skeleton.parents[full[0]])
+        while chest >= 0 and side_of(skeleton.names[chest]) is not None:
+            chest = int(skeleton.parents[chest])
+        if chest >= 0:
+            chains.append((upper, fore, chest))
+    return chains
+
+
+def arm_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
+              forward: np.ndarray, pose: Pose, front: np.ndarray, up: np.ndarray,
+              movable: np.ndarray, limits: ArmLimits = ArmLimits(),
+              min_slope: float = 0.1) -> np.ndarray:
+    """Depth sides for the upper arms whose solved elbows break the shoulder's rotation.
+
+    As :func:`leg_sides` for each arm (:func:`arm_chains`), its combinations scored by
+    :func:`arm_cost` on the solved chest; only those that mirror the upper arm (the
+    forearm with it or not): the start's forearm sides are mostly right (61 of the 68
+    clearly turned ones on the CMU poses), its upper arms' a guess (the character's
+    front; 28 of 54).
+
+    Args:
+        skeleton: The full skeleton.
+        solving: The solving skeleton.
+        bones: Full-skeleton index of each solving bone, ``(m,)``.
+        forward: The view direction (depth grows along it), ``(3,)``.
+        pose: The solved pose.
+        front: The character's front in the rest pose, unit, world axes, ``(3,)``.
+        up: The rig's rest up, world axes, unit, ``(3,)``.
+        movable: Solving bones whose side may change (not pinned), ``(m,)`` bool.
+        limits: The range and threshold.
+        min_slope: Smallest depth change over length of a bone that may be mirrored.
+
+    Returns:
+        The new depth side of each solving bone (+1 away from the viewer), 0 where
+        unchanged, ``(m,)``.
+    """
+    forward = np.asarray(forward, float) / np.linalg.norm(forward)
+    state = skeleton.forward(pose)
+    sides = np.zeros(len(bones))
+    for upper, fore, chest in arm_chains(skeleton, solving, bones, up):
+        carry = state.frames[chest] @ skeleton.rest_frames[chest].T
+        down, ahead = carry @ -np.asarray(up, float), carry @ np.asarray(front, float)
+        vectors = [state.tails[int(bones[k])] - state.heads[int(bones[k])]
+                   for k in (upper, fore)]
+        free = [bool(movable[k]) and abs(float(v @ forward)) >= min_slope * np.linalg.norm(v)
+                for k, v in zip((upper, fore), vectors, strict=True)]
+        if not free[0]:
+            continue
+        solved = arm_cost(vectors[0], vectors[1], down, ahead, limits)
+        options = []
+        for fore_too in (False, True) if free[1] else (False,):
+            v = [x - 2.0 * float(x @ forward) * forward if b else x
+                 for x, b in zip(vectors, (True, fore_too), strict=True)]
+            options.append((arm_cost(v[0], v[1], down, ahead, limits), fore_too, v))
+        cost, fore_too, v = min(options, key=lambda o: (round(o[0], 6), o[1]))
+        if cost <= solved - limits.margin:
+            for k, x in zip((upper, fore) if fore_too else (upper,), v, strict=False):
+                sides[k] = 1.0 if float(x @ forward) > 0 else -1.0
     return sides
