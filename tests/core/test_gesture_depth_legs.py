@@ -81,6 +81,13 @@ def test_a_knee_bent_back_on_a_rig_with_straight_legs_is_solved_flexed(ortho):
     assert new == pytest.approx(depth, abs=1e-3)
     assert new_off < 1e-3
     assert resided == ("shin.L",)
+    # A bone the rig gives IK limits keeps the side the start chose with them (here
+    # limits that allow both sides, so the start's default stays).
+    limits = np.full((sk.n_bones, 3, 2), np.nan)
+    limits[4] = [[-np.pi, np.pi]] * 3
+    res = solve_pose3d(sk, emb, cam, ik_limits=limits)
+    assert res.resided == ()
+    assert float((res.joints3d[ankle] - res.joints3d[knee]) @ FORWARD) < -0.35
 
 
 def test_a_plausible_solve_is_left_as_it_is():

@@ -779,10 +779,14 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     if front is None:
         return result
     # Bones drawn as at bind may change side too: a foot drawn end-on looks the same
-    # pointing at the viewer (as at bind) or away; pinned bones keep theirs.
+    # pointing at the viewer (as at bind) or away; pinned bones keep theirs, and so do
+    # bones with IK limits: the rig's own limits chose their sides (the start).
     movable = np.ones(len(result.bones), bool)
     if pinned is not None:
         movable &= ~np.asarray(pinned, bool)[result.bones]
+    if ik_limits is not None:
+        movable &= ~np.any(np.isfinite(np.asarray(ik_limits, float)[result.bones]),
+                           axis=(1, 2))
     checks = [f for f, on in ((plausibility.leg_sides, opts.leg_limits),
                               (plausibility.arm_sides, opts.arm_limits)) if on]
     chosen = np.zeros(len(result.bones))
