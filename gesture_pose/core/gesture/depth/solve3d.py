@@ -29,7 +29,7 @@
    those the start meets; ours), until the step or the energy decrease is negligible.
 4. Near-symmetric left/right limbs made exactly symmetric (:mod:`.symmetry`).
 5. The legs' mirror images scored against the hip's, knee's and ankle's ranges on the
-   solved pose, whose pelvis the drawn hips turned, then the upper arms' against the
+   solved pose, whose pelvis the drawn hips turned, and the upper arms' against the
    shoulder's rotation; where one is clearly more plausible, steps 2-4 again from a
    start on its sides, kept unless the drawing energy rises (:mod:`.plausibility`;
    ours).
@@ -284,11 +284,12 @@ class DepthOptions:
             3.48, the 25 traced drawings (cached 2D fits) 6.63 -> 6.56. Bones drawn as
             at bind may change side too (then lifted, without E_b): a foot drawn end-on
             looks the same pointing at the viewer or away (3.50 without them).
-        arm_limits: After the legs' check, the same for the arms
+        arm_limits: With the legs' check, the same for the arms
             (:func:`.plausibility.arm_sides`; ours): an upper arm whose solved elbow
             bends the forearm more than 100 degrees about it from the front the chest
-            gives it (the humerus's rotation) is mirrored, and solved again from a
-            start on that side. The start's upper arms have no cue but the character's
+            gives it (the humerus's rotation) is mirrored, in the same second solve as
+            the legs' sides (checking the arms after the legs' second solve measured
+            the same). The start's upper arms have no cue but the character's
             front (28 of 54 clearly turned ones right on the CMU poses). CMU poses 4.94
             -> 4.76 % of the height (median 5.00 -> 4.53), the sample characters' exact
             embeddings 3.48 -> 3.44, the 25 traced drawings 6.56 -> 6.55.
@@ -769,8 +770,8 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     if not (opts.leg_limits or opts.arm_limits):
         return result
     # The joints' ranges on the solved pose (whose pelvis and chest the drawing turned)
-    # may tell apart mirror images the start chose between by rules (ours): the legs,
-    # then the arms, each solved again from a start on the sides it chose.
+    # may tell apart mirror images the start chose between by rules (ours): the legs'
+    # and the arms' sides they choose, solved again from a start on those sides.
     s = embedding.solving
     up = np.asarray(opts.rest_up, float)
     up = up / max(float(np.linalg.norm(up)), 1e-12)
@@ -787,24 +788,21 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     if ik_limits is not None:
         movable &= ~np.any(np.isfinite(np.asarray(ik_limits, float)[result.bones]),
                            axis=(1, 2))
-    checks = [f for f, on in ((plausibility.leg_sides, opts.leg_limits),
-                              (plausibility.arm_sides, opts.arm_limits)) if on]
-    chosen = np.zeros(len(result.bones))
-    for check in checks:
-        forced = check(skeleton, s, result.bones, frame.forward, result.pose, front, up,
-                       movable)
-        if not np.any(forced):
-            continue
-        merged = np.where(forced != 0, forced, chosen)
-        again = _solve_dropping(args, merged)
-        before = result.e_conformity + result.e_foreshortening
-        if again.e_conformity + again.e_foreshortening > (1.0 + opts.leg_energy_rise) * before:
-            continue
-        chosen = merged
-        timings = {k: v + result.timings.get(k, 0.0) for k, v in again.timings.items()}
-        names = tuple(skeleton.names[int(b)] for b in result.bones[chosen != 0])
-        result = replace(again, timings=timings, resided=names)
-    return result
+    forced = np.zeros(len(result.bones))
+    for check, on in ((plausibility.leg_sides, opts.leg_limits),
+                      (plausibility.arm_sides, opts.arm_limits)):
+        if on:  # legs and arms share no bone
+            forced += check(skeleton, s, result.bones, frame.forward, result.pose, front, up,
+                            movable)
+    if not np.any(forced):
+        return result
+    again = _solve_dropping(args, forced)
+    before = result.e_conformity + result.e_foreshortening
+    if again.e_conformity + again.e_foreshortening > (1.0 + opts.leg_energy_rise) * before:
+        return result
+    timings = {k: v + result.timings.get(k, 0.0) for k, v in again.timings.items()}
+    names = tuple(skeleton.names[int(b)] for b in result.bones[forced != 0])
+    return replace(again, timings=timings, resided=names)
 
 
 def _solve_dropping(args: tuple, forced: np.ndarray | None = None) -> Pose3DResult:
