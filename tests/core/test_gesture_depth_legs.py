@@ -10,7 +10,7 @@ from gesture_pose.core.gesture.depth.synthetic import project_embedding, solving
 from gesture_pose.core.gesture.embedding import posed_joints
 from gesture_pose.core.rotations import exp_map
 from gesture_pose.core.skeleton import Pose
-from tests.core.fixtures import front_camera, turned_about_x
+from tests.core.fixtures import bone_skeleton, front_camera, turned_about_x
 from tests.core.test_gesture_depth_sides import FORWARD, _figure_with_arms, _legged_figure
 
 FRONT = np.array([0.0, -1.0, 0.0])  # the legged figure faces the front camera
@@ -48,6 +48,39 @@ def test_the_hip_extends_30_degrees_and_the_foot_keeps_its_angle():
     foot = np.array([0.0, 1.0, 0.0])  # the rest foot along the shin's front
     assert plausibility.leg_cost(DOWN, DOWN, FRONT, _rest(foot)) == pytest.approx(0.0)
     assert plausibility.leg_cost(DOWN, DOWN, -FRONT, _rest(foot)) == pytest.approx(120.0)
+
+
+@pytest.mark.parametrize("bend", [0.0, 20.0, 50.0, 70.0])
+def test_a_foot_at_its_rest_angle_costs_nothing_on_a_rig_with_bent_knees(bend):
+    """A leg whose knee is bent at rest (a quadruped's hind leg), its foot pointing
+    forward and down: at rest, and with the whole leg swung 40 degrees forward at the
+    hip, the foot is at its rest angle to the shin's front, so it costs nothing even with
+    an ankle range of 0. The rest encoding read the shin's front across the thigh rather
+    than the shin for knees bent 15 degrees or more (here 1.0, 1.0 and 4.8 degrees at a
+    rest bend of 20, 50 and 70)."""
+    b = np.radians(bend)
+    knee = np.array([0.2, 0.0, 0.5])
+    ankle = knee + 0.45 * np.array([0.0, np.sin(b), -np.cos(b)])
+    heads = np.array([[0, 0, 1.0], [0, 0, 1.15], [0.2, 0, 1.0], [-0.2, 0, 1.0], knee,
+                      knee * [-1, 1, 1], ankle, ankle * [-1, 1, 1]], float)
+    toe = np.array([0.0, -0.15, -0.08])
+    tails = np.array([[0, 0, 1.15], [0, 0, 1.7], knee, knee * [-1, 1, 1], ankle,
+                      ankle * [-1, 1, 1], ankle + toe, ankle * [-1, 1, 1] + toe], float)
+    sk = bone_skeleton(("hips", "spine", "thigh.L", "thigh.R", "shin.L", "shin.R", "foot.L",
+                        "foot.R"), [-1, 0, 0, 0, 2, 3, 4, 5], heads, tails,
+                       [False, True, False, False, True, True, True, True], roll_step=0.1)
+    s = solving_skeleton(sk)
+    bones = np.asarray(s.bones)
+    chains = plausibility.leg_chains(sk, s, bones, np.array([0.0, 0.0, 1.0]))
+    assert len(chains) == 2 and all(len(c) == 3 for c in chains)
+    strict = plausibility.LegLimits(ankle=0.0)
+    for pose in (Pose.identity(sk.n_bones),
+                 turned_about_x(sk, Pose.identity(sk.n_bones), ((2, -40.0), (3, -40.0)))):
+        state = sk.forward(pose)
+        for chain in chains:
+            rest = plausibility._leg_rest(sk, chain, bones, np.eye(3), FRONT)
+            v = [state.tails[bones[k]] - state.heads[bones[k]] for k in chain]
+            assert plausibility.leg_cost(*v, rest, strict) == pytest.approx(0.0, abs=1e-6)
 
 
 @pytest.mark.parametrize("ortho", [True, False])

@@ -88,6 +88,33 @@ def _unit_perp(v: np.ndarray, axis: np.ndarray) -> np.ndarray | None:
     return p / n if n > 1e-9 * max(float(np.linalg.norm(v)), 1e-12) else None
 
 
+def _shin_front(thigh: np.ndarray, shin: np.ndarray, front: np.ndarray | None
+                ) -> np.ndarray | None:
+    """The shin's front, where the ankle's rest angle is measured from, unit, ``(3,)``.
+
+    The knee's front (``-(shin ⟂ thigh)``, where a flexed shin goes) when the knee is bent
+    by 15 degrees or more, else ``front``, carried onto the shin by the knee's flexion (the
+    smallest rotation taking the thigh to the shin) and made orthogonal to the shin; None
+    when undefined (no ``front`` for a straight knee, the shin turned right round, or the
+    carried front along the shin).
+
+    Args:
+        thigh: Thigh vector, world units, ``(3,)``.
+        shin: Shin vector, ``(3,)``.
+        front: The front of a straight leg, ``(3,)`` (any length; its part along the
+            thigh is ignored), or None.
+
+    Returns:
+        The unit shin front orthogonal to ``shin``, ``(3,)``, or None.
+    """
+    knee = _unit_perp(-shin, thigh / np.linalg.norm(thigh))
+    ahead = knee if knee is not None and _angle(thigh, shin) >= 15.0 else front
+    carry = _swing(thigh, shin)
+    if ahead is None or carry is None:
+        return None
+    return _unit_perp(carry @ ahead, shin / np.linalg.norm(shin))
+
+
 @dataclass(frozen=True)
 class LegRest:
     """A leg's rest geometry in its pelvis's frame, carried to the solved pelvis.
@@ -148,14 +175,11 @@ def leg_cost(thigh: np.ndarray, shin: np.ndarray, foot: np.ndarray | None, rest:
         cost += float(np.degrees(2.0 * np.arcsin(min(1.0, np.sin(bend) * np.sin(excess / 2)))))
         cost += limits.twist_share * abs(twist) * float(np.sin(bend))
     if foot is not None and rest.foot is not None:
-        front = knee if knee is not None and bend >= np.radians(15.0) else expected
-        carry = _swing(thigh, shin)
-        if front is not None and carry is not None:
+        f = _shin_front(thigh, shin, expected)
+        if f is not None:
             s = shin / np.linalg.norm(shin)
-            f = _unit_perp(carry @ front, s)
-            if f is not None:
-                want = rest.foot[0] * s + rest.foot[1] * f + rest.foot[2] * np.cross(s, f)
-                cost += max(0.0, _angle(foot, want) - limits.ankle)
+            want = rest.foot[0] * s + rest.foot[1] * f + rest.foot[2] * np.cross(s, f)
+            cost += max(0.0, _angle(foot, want) - limits.ankle)
     return cost
 
 
@@ -199,9 +223,9 @@ def _leg_rest(skeleton: Skeleton, chain: tuple[int, ...], bones: np.ndarray,
     foot = None
     if len(chain) > 2:
         s = shin / np.linalg.norm(shin)
-        knee = _unit_perp(-shin, thigh / np.linalg.norm(thigh))
-        ahead = knee if knee is not None and _angle(thigh, shin) >= 15.0 else \
-            _unit_perp(front, s)
+        # The shin's front as leg_cost reads it on a posed leg (at rest, the rest pose's
+        # foot costs nothing).
+        ahead = _shin_front(thigh, shin, front)
         if ahead is not None:
             f = rest[int(bones[chain[2]])]
             f = f / np.linalg.norm(f)
