@@ -123,6 +123,26 @@ def test_a_knee_bent_back_on_a_rig_with_straight_legs_is_solved_flexed(ortho):
     assert float((res.joints3d[ankle] - res.joints3d[knee]) @ FORWARD) < -0.35
 
 
+def test_the_second_solve_is_dropped_when_the_drawing_energy_rises():
+    """The straight-legged figure's knee bent back, as above: the ranges' second solve
+    is kept only if its drawing energy (E_c plus E_v) is at most ``leg_energy_rise``
+    above the first's. With a negative allowance it never is: the result is the first
+    solve's, nothing re-sided."""
+    sk = _legged_figure()
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=True)
+    pose = turned_about_x(sk, Pose.identity(sk.n_bones), ((4, 60.0),))
+    emb = project_embedding(sk, s, pose, cam)
+    first = solve_pose3d(sk, emb, cam, options=DepthOptions(leg_limits=False))
+    kept = solve_pose3d(sk, emb, cam)
+    assert kept.resided == ("shin.L",)
+    assert kept.e_conformity + kept.e_foreshortening <= 1.1 * (
+        first.e_conformity + first.e_foreshortening)
+    dropped = solve_pose3d(sk, emb, cam, options=DepthOptions(leg_energy_rise=-1.0))
+    assert dropped.resided == ()
+    np.testing.assert_allclose(dropped.joints3d, first.joints3d, atol=1e-9)
+
+
 def test_a_plausible_solve_is_left_as_it_is():
     """On the truth itself (both knees bent back, the left thigh raised 10 degrees
     forward) no combination of mirror images is more plausible by the margin: no side
