@@ -379,8 +379,10 @@ class Pose3DResult:
         warnings: Human-readable notes.
         depth_sides: The depth side the start gave each solving bone (+1 away from the
             viewer, -1 towards), 0 for bones it left at their bind rotation, ``(m,)``.
-        resided: Bones whose start side the legs' joint ranges changed
-            (``DepthOptions.leg_limits``).
+        resided: Names of the bones the joints' ranges mirrored from the first solve's
+            sides (the legs' and the arms', ``DepthOptions.leg_limits`` and
+            ``arm_limits``) and started on those sides in the second solve, when that
+            solve was kept (``leg_energy_rise``); () when none was or it was not.
     """
 
     pose: Pose
@@ -440,7 +442,7 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
     """Drawing cues, terms and constraints (step 1 of the module docstring).
 
     The links of the solving bones ``forced`` sets (non-zero) do not count as drawn as at
-    bind (E_b, the start's kept bones): a side the legs' ranges chose is a moved bone's.
+    bind (E_b, the start's kept bones): a side the joints' ranges chose is a moved bone's.
 
     The depth orders at the indices in ``skip`` are left out: indices into the list read
     from the drawing after ``bind_orders`` filtered it (the list a first solve reports in

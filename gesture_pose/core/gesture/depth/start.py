@@ -801,9 +801,12 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
             (the rest joints are world positions); None for :data:`REST_UP`. It gives the
             character's front for ``pelvis_front`` and tells the legs (:func:`leg_pairs`).
         forced: Depth sides that replace the rules' where non-zero, ``(m,)`` (ours: the
-            legs' sides a first solve broke the joints' ranges with,
-            :func:`.plausibility.leg_sides`); such bones are lifted even when drawn as at
-            bind (``keep``), pinned ones excepted, and the greedy flips leave them.
+            mirror images of the legs' and arms' sides with which a first solve broke the
+            joints' ranges, :func:`.plausibility.leg_sides` and
+            :func:`.plausibility.arm_sides`); such bones are lifted even when drawn as at
+            bind (``keep``), pinned ones excepted, and the greedy flips leave them. They
+            replace the sides after the rules ran: the rules' choices for the other bones
+            (a child's hinge or carried side) were made against the unforced ones.
 
     Returns:
         ``(pose, signs)``: the start pose and the sides, ``(m,)``.
