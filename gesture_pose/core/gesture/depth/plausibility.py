@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...names import side_of
+from ...rotations import rotation_between
 from ...skeleton import Pose, Skeleton
 from ..types import SolvingSkeleton
 from . import start
@@ -70,15 +71,12 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _swing(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-    """The smallest rotation taking direction ``a`` to ``b``, ``(3, 3)`` (None: opposite)."""
-    a = a / np.linalg.norm(a)
-    b = b / np.linalg.norm(b)
-    v = np.cross(a, b)
-    c = float(a @ b)
-    if c < -0.99:
-        return None
-    vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-    return np.eye(3) + vx + vx @ vx / (1.0 + c)
+    """The smallest rotation taking direction ``a`` to ``b``, ``(3, 3)``.
+
+    None within 8 degrees of opposite directions, where the rotation's axis is a guess.
+    """
+    c = float(a @ b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-12)
+    return None if c < -0.99 else rotation_between(a, b)
 
 
 def _unit_perp(v: np.ndarray, axis: np.ndarray) -> np.ndarray | None:
