@@ -627,7 +627,8 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
                 ik_limits: np.ndarray | None = None, natural_bend: bool = True,
                 min_bend: float = np.radians(3.0), min_lift: float = 0.1,
                 limit_axes: np.ndarray | None = None, min_off: float = 0.15,
-                arms: bool = False, up: np.ndarray = REST_UP) -> np.ndarray:
+                arms: bool = False, up: np.ndarray = REST_UP,
+                held: np.ndarray | None = None) -> np.ndarray:
     """Depth sides of bones at a joint the rig restricts or bends (knees, elbows).
 
     A drawn bone's two depth sides bend its joint with its parent in opposite senses. With
@@ -679,6 +680,8 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         arms: Use the rest bend of the other limbs' middle bones (elbows) too.
         up: The rig's rest up, world axes, ``(3,)``, which tells the legs
             (:func:`leg_pairs`).
+        held: Solving bones whose sides are not decided here, ``(m,)`` bool (ours: the
+            sides :func:`start_pose` is given, ``forced``); None: none.
 
     Returns:
         The sides, ``(m,)``.
@@ -703,7 +706,8 @@ def hinge_signs(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     def decide(k: int, bone: int, sides: np.ndarray, depth: float, state: PoseState,
                pose: Pose) -> float | None:
         parent = int(skeleton.parents[bone])
-        if depth < min_lift * skeleton.lengths[bone] or parent not in solving:
+        if depth < min_lift * skeleton.lengths[bone] or parent not in solving or (
+                held is not None and held[k]):
             return None
         cands = list(sides)
         if ik_limits is not None and np.any(np.isfinite(ik_limits[bone])):
@@ -804,9 +808,8 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
             mirror images of the legs' and arms' sides with which a first solve broke the
             joints' ranges, :func:`.plausibility.leg_sides` and
             :func:`.plausibility.arm_sides`); such bones are lifted even when drawn as at
-            bind (``keep``), pinned ones excepted, and the greedy flips leave them. They
-            replace the sides after the rules ran: the rules' choices for the other bones
-            (a child's hinge or carried side) were made against the unforced ones.
+            bind (``keep``), pinned ones excepted; the rules and the greedy flips leave
+            them, and the rules read their children against them.
 
     Returns:
         ``(pose, signs)``: the start pose and the sides, ``(m,)``.
@@ -833,6 +836,15 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     if agreement is not None:
         kept &= np.asarray(agreement, float) >= min_agreement
     signs = np.where(kept, facing * np.sign(bind_slope), default)
+    chosen = np.zeros(jm.n_bones, bool)
+    if forced is not None:
+        # Before the rules, which leave these sides alone, so that a child's hinge or
+        # carried side is read against its parent's forced side.
+        chosen = np.asarray(forced, float) != 0.0
+        if pinned is not None:
+            chosen &= ~np.asarray(pinned, bool)[jm.bones]
+        signs[chosen] = np.asarray(forced, float)[chosen]
+        fixed = fixed & ~chosen
     turned = facing < 0 and turn
     if turned:
         bind = turned_bind(skeleton, jm, f, bind, fixed)
@@ -840,22 +852,16 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     if facing_dir is not None:
         # The turned bind pose carries the front round with it; the unturned one does not.
         signs = pelvis_front_sides(skeleton, jm, f, embedding, bind, signs, fixed,
-                                   ~kept & thigh_bones(sk, up),
+                                   ~kept & thigh_bones(sk, up) & ~chosen,
                                    facing_dir if turned else facing * facing_dir,
                                    pelvis_front)
     if carried_turn > 0.0:
-        signs = carried_sides(skeleton, jm, f, embedding, bind, signs, fixed, ~kept,
-                              carried_turn)
+        signs = carried_sides(skeleton, jm, f, embedding, bind, signs, fixed,
+                              ~kept & ~chosen, carried_turn)
     if natural_bend or (ik_limits is not None and np.any(np.isfinite(ik_limits))):
         signs = hinge_signs(skeleton, jm, f, embedding, bind, signs, fixed, ik_limits,
-                            natural_bend, limit_axes=limit_axes, arms=arm_bend, up=up)
-    chosen = np.zeros(jm.n_bones, bool)
-    if forced is not None:
-        chosen = np.asarray(forced, float) != 0.0
-        if pinned is not None:
-            chosen &= ~np.asarray(pinned, bool)[jm.bones]
-        signs[chosen] = np.asarray(forced, float)[chosen]
-        fixed = fixed & ~chosen
+                            natural_bend, limit_axes=limit_axes, arms=arm_bend, up=up,
+                            held=chosen)
     pose = lifted_pose(skeleton, jm, f, embedding, bind, signs, fixed)
     if not order:
         return pose, signs
