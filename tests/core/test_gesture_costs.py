@@ -176,37 +176,42 @@ def test_length_term_is_lenient_up_to_the_nearest_depth():
 
 def test_foreshortening_scales_the_short_side_with_the_bone():
     """A bone turned out of the view plane is drawn at cos(theta) of its length: with
-    ``foreshortening`` the short side's sigma is at least that share of the bone's length,
-    so a long bone drawn at 80% pays little; the long side keeps the strict sigma / 3. Off
-    by default (the paper's sigma)."""
+    ``foreshortening`` the short side's sigma becomes that share of the bone's length
+    beyond ``foreshortening_from`` sigmas of shortfall, so a long bone drawn at a third of
+    its length no longer costs 1, while a small shortfall costs what the paper's sigma
+    says (the long side keeps the strict sigma / 3). Off by default (the paper's Eq. 2)."""
     assert CostParams().foreshortening == 0.0
-    drawn = np.array([80.0, 31.0, 100.0, 105.0])
+    drawn = np.array([95.0, 31.0, 100.0, 105.0])
     paper = length_cost(drawn, 100.0, 10.0)
-    ours = length_cost(drawn, 100.0, 10.0, short_sigma=40.0)
-    np.testing.assert_allclose(ours[:2], 1.0 - np.exp(-0.5 * (np.array([20.0, 69.0]) / 40.0)
-                                                       ** 2))
-    assert ours[0] < 0.12 and paper[0] > 0.8
-    np.testing.assert_allclose(ours[2:], paper[2:])
-    # In the pairwise cost at 0.4: the limb's 300 px bone expected at 375 px (drawn at 80%)
-    # pays Cl with sigma = 0.4 of its length instead of 4% of the diagonal (15 px here); where
-    # that share of the length is below the paper's sigma, the paper's sigma holds.
+    scaled = length_cost(drawn, 100.0, 10.0, short_sigma=50.0, knee=0.5)
+    np.testing.assert_allclose(scaled[0], paper[0])  # 5 px short: within half a sigma
+    np.testing.assert_allclose(scaled[1], 1.0 - np.exp(-0.5 * (0.5 + 64.0 / 50.0) ** 2))
+    assert scaled[1] < 0.81 and paper[1] > 0.99
+    np.testing.assert_allclose(scaled[2:], paper[2:])
+    # From the start (knee 0): the share alone.
+    np.testing.assert_allclose(length_cost(drawn[1:2], 100.0, 10.0, short_sigma=50.0),
+                               1.0 - np.exp(-0.5 * (69.0 / 50.0) ** 2))
+    # In the pairwise cost: the limb's 300 px bone expected at 600 px (drawn at half its
+    # length) pays Cl with the paper's sigma (4% of the diagonal, 15 px here) for half a
+    # sigma of its shortfall and with half its length for the rest.
     d = preprocess(_limb(None))
     sigma = CostParams().sigma_length * d.diagonal
 
-    def cost(length: float, foreshortening: float = 0.4) -> float:
-        params = CostParams(w_direction=0.0, foreshortening=foreshortening)
+    def cost(length: float, params: CostParams) -> float:
         return float(pair_cost(d, np.array([[100.0, 300.0]]), np.array([R]), np.array([-1]),
                                np.array([0]), np.array([[400.0, 300.0]]), np.array([R]),
                                np.array([-1]), np.array([0]), length, params)[0, 0])
 
-    base = cost(300.0)  # the data terms alone (Cl = 0)
-    cl = 1.0 - np.exp(-0.5 * (75.0 / 150.0) ** 2)
-    np.testing.assert_allclose(cost(375.0), 1.0 - (1.0 - cl) * (1.0 - base))
-    paper_cl = 1.0 - np.exp(-0.5 * (75.0 / sigma) ** 2)
-    assert paper_cl > 0.99
-    for share in (0.0, 0.5 * sigma / 375.0):
-        np.testing.assert_allclose(cost(375.0, foreshortening=share),
-                                   1.0 - (1.0 - paper_cl) * (1.0 - base))
+    base = cost(300.0, CostParams(w_direction=0.0))  # the data terms alone (Cl = 0)
+    ours = CostParams(w_direction=0.0, foreshortening=0.5, foreshortening_from=0.5)
+    z = 0.5 + (300.0 - 0.5 * sigma) / 300.0
+    cl = 1.0 - np.exp(-0.5 * z**2)
+    np.testing.assert_allclose(cost(600.0, ours), 1.0 - (1.0 - cl) * (1.0 - base))
+    paper = CostParams(w_direction=0.0)
+    assert cost(600.0, paper) > 0.999
+    # A shortfall within half a sigma costs what it costs in the paper.
+    np.testing.assert_allclose(cost(300.0 + 0.4 * sigma, ours),
+                               cost(300.0 + 0.4 * sigma, paper))
 
 
 def test_problem_gives_the_view_length_only_with_view_lengths():

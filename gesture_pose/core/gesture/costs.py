@@ -72,13 +72,17 @@ class CostParams:
             samples without an overlap (ours, see
             :func:`~.consistency.stacked_counterparts`); 0 gives the paper's non-overlap.
         foreshortening: Eq. 2's sigma for a bone drawn shorter than its length is at least
-            this share of the bone's expected length (ours, off: 0 gives the paper's
-            sigma, a share of the drawing's diagonal, for every bone). A bone turned out
-            of the view plane by ``theta`` is drawn at ``cos(theta)`` of its length, so how
-            much shorter it can look grows with the bone: a thigh stepping towards the
-            viewer (drawn at 80%) or pointing at it (31%) pays the paper's ``Cl`` of 0.34
-            and 1.00, 0.12 and 0.78 at 0.4. Not on by default: it loosens the elbow of a
-            bent arm drawn at full length as much (measured in docs/gesture.md).
+            this share of the bone's expected length beyond ``foreshortening_from``
+            (ours; 0 gives the paper's sigma, a share of the drawing's diagonal, for every
+            bone). A bone turned out of the view plane by ``theta`` is drawn at
+            ``cos(theta)`` of its length, so how much shorter it can look grows with the
+            bone: thighs pointing at the viewer, drawn at 31% of their length, pay the
+            paper's ``Cl`` of 1.00 (0.76 at 0.5 from half a sigma). Off by default: measured
+            mixed (docs/gesture.md).
+        foreshortening_from: Shortfall, in the paper's sigmas, up to which the paper's sigma
+            holds before the share above takes over: a bone drawn at full length keeps
+            the paper's hold on its joints (with the share alone from the start, a bent
+            arm's elbow slid 9.5 px along its upper arm, docs/gesture.md).
     """
 
     alpha: float = np.radians(15.0)
@@ -99,6 +103,7 @@ class CostParams:
     crossing_room: bool = True
     stacked_counterparts: float = 1.5
     foreshortening: float = 0.0
+    foreshortening_from: float = 0.0
 
 
 def circle_alignment(drawing: Drawing, centres: np.ndarray, radii: np.ndarray,
@@ -177,7 +182,8 @@ def unary_from_aligned(aligned: np.ndarray, terminal: bool, params: CostParams |
 
 def length_cost(dist: np.ndarray, length: float, sigma: float,
                 free: tuple[float, float] | None = None,
-                nearest: float | None = None, short_sigma: float | None = None) -> np.ndarray:
+                nearest: float | None = None, short_sigma: float | None = None,
+                knee: float = 0.0) -> np.ndarray:
     """Length term ``Cl`` (Eq. 2): Gaussian misfit, three times stricter when too long.
 
     Args:
@@ -191,8 +197,10 @@ def length_cost(dist: np.ndarray, length: float, sigma: float,
             perspective camera, pixels (see ``perspective_lengths``): a drawn length above
             the range is measured with ``sigma`` up to this length and with
             ``sigma / 3`` beyond it. None: ``sigma / 3`` from the top of the range.
-        short_sigma: Standard deviation below the range (a foreshortened bone), pixels
-            (see ``foreshortening``); None: ``sigma``.
+        short_sigma: Standard deviation below the range beyond ``knee`` sigmas (a
+            foreshortened bone), pixels (see ``foreshortening``); None: ``sigma``.
+        knee: Shortfall in units of ``sigma`` up to which ``sigma`` holds when
+            ``short_sigma`` is given (see ``foreshortening_from``).
 
     Returns:
         ``Cl`` in ``[0, 1)``, the shape of ``dist``.
@@ -201,7 +209,12 @@ def length_cost(dist: np.ndarray, length: float, sigma: float,
     if free is not None:
         lo, hi = min(lo, float(free[0])), max(hi, float(free[1]))
     dist = np.asarray(dist, float)
-    short = np.maximum(lo - dist, 0.0) / (sigma if short_sigma is None else short_sigma)
+    deficit = np.maximum(lo - dist, 0.0)
+    if short_sigma is None:
+        short = deficit / sigma
+    else:
+        near = np.minimum(deficit, knee * sigma)
+        short = near / sigma + (deficit - near) / short_sigma
     over = np.maximum(dist - hi, 0.0)
     lenient = 0.0 if nearest is None else max(float(nearest) - hi, 0.0)
     near = np.minimum(over, lenient)
@@ -218,7 +231,8 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     """Pairwise bone cost ``E(i, j) = 1 - (1 - Cl)(1 - Ccf)(1 - Wc Cc)``.
 
     ``Cl`` is Eq. 2 (:func:`length_cost`) with ``sigma`` = ``sigma_length`` of the
-    diagonal (below the accepted range: ``foreshortening`` times ``length`` if larger).
+    diagonal (below the accepted range and beyond ``foreshortening_from`` sigmas:
+    ``foreshortening`` times ``length`` if larger).
 
     ``Ccf`` samples the bone's two outlines (offset by the interpolated joint radius) at
     ``stations`` positions; a station conforms when a contour runs there (within
@@ -261,7 +275,7 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     u = d / np.maximum(dist, 1e-9)[..., None]
     sigma = params.sigma_length * drawing.diagonal
     cl = length_cost(dist, length, sigma, free, nearest,
-                     max(sigma, params.foreshortening * length))
+                     max(sigma, params.foreshortening * length), params.foreshortening_from)
     # Coordinates apart, (Ka, Kb, stations) each: numpy is slow on a last axis of 2.
     ux, uy = u[..., 0, None], u[..., 1, None]
     dx, dy = d[..., 0, None], d[..., 1, None]
