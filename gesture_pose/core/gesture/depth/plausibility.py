@@ -86,6 +86,19 @@ def _unit_perp(v: np.ndarray, axis: np.ndarray) -> np.ndarray | None:
     return p / n if n > 1e-9 * max(float(np.linalg.norm(v)), 1e-12) else None
 
 
+def _mirrored(v: np.ndarray, forward: np.ndarray) -> np.ndarray:
+    """``v`` mirrored about the view plane (unit view direction ``forward``), ``(3,)``.
+
+    The mirror image projects where ``v`` does (orthographically), at the other depth.
+    """
+    return v - 2.0 * float(v @ forward) * forward
+
+
+def _depth_side(v: np.ndarray, forward: np.ndarray) -> float:
+    """+1 when ``v`` goes away from the viewer along ``forward``, else -1."""
+    return 1.0 if float(v @ forward) > 0 else -1.0
+
+
 def _shin_front(thigh: np.ndarray, shin: np.ndarray, front: np.ndarray | None
                 ) -> np.ndarray | None:
     """The shin's front, where the ankle's rest angle is measured from, unit, ``(3,)``.
@@ -280,8 +293,7 @@ def leg_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
             bits = [(mask >> i) & 1 == 1 for i in range(len(chain))]
             if any(b and not f for b, f in zip(bits, free, strict=True)):
                 continue
-            v = [x - 2.0 * float(x @ forward) * forward if b else x
-                 for x, b in zip(vectors, bits, strict=True)]
+            v = [_mirrored(x, forward) if b else x for x, b in zip(vectors, bits, strict=True)]
             cost = leg_cost(v[0], v[1], v[2] if len(v) > 2 else None, rest, limits)
             options.append((cost, sum(bits), bits, v))
         solved = options[0][0]  # mask 0: as solved
@@ -292,7 +304,7 @@ def leg_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
         if cost <= solved - limits.margin:
             for k, b, x in zip(chain, bits, v, strict=True):
                 if b:
-                    sides[k] = 1.0 if float(x @ forward) > 0 else -1.0
+                    sides[k] = _depth_side(x, forward)
     return sides
 
 
@@ -434,11 +446,11 @@ def arm_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
         solved = arm_cost(vectors[0], vectors[1], down, ahead, limits)
         options = []
         for fore_too in (False, True) if free[1] else (False,):
-            v = [x - 2.0 * float(x @ forward) * forward if b else x
+            v = [_mirrored(x, forward) if b else x
                  for x, b in zip(vectors, (True, fore_too), strict=True)]
             options.append((arm_cost(v[0], v[1], down, ahead, limits), fore_too, v))
         cost, fore_too, v = min(options, key=lambda o: (round(o[0], 6), o[1]))
         if cost <= solved - limits.margin:
             for k, x in zip((upper, fore) if fore_too else (upper,), v, strict=False):
-                sides[k] = 1.0 if float(x @ forward) > 0 else -1.0
+                sides[k] = _depth_side(x, forward)
     return sides
