@@ -5,8 +5,9 @@ Three tables:
 1. **Lifting alone** on the sample humanoid and quadruped: the 2D embedding is the exact
    projection of a known pose (with the occlusions a perfect contour analysis would see),
    so the numbers measure the 3D solve, not the 2D fit.
-2. **The whole Pose** (traced contours of a known pose, the 2D fit, the 3D solve) on the
-   sample humanoid and quadruped, timed as the operator runs it.
+2. **The whole Pose** (traced contours of a known pose, the 2D fit, the 3D solve with the
+   choice of left/right labels, ``DepthOptions.limb_labels``) on the sample humanoid and
+   quadruped, timed as the operator runs it.
 
 The camera of each drawing is framed on the posed character (all of it in the frame).
 Tables 1 and 2 cover the mild example poses (``HUMANOID_POSES``, ``QUADRUPED_POSES``:

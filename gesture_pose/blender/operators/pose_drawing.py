@@ -3,7 +3,9 @@
 Pose reads the armature, its skinned meshes, the view and the drawing once, fits the 2D
 skeletal embedding as Fit Drawing does (:func:`.fit_drawing.fit_scene_drawing`, Gesture3D
 Sections 4-6), lifts it to 3D (:func:`gesture_pose.core.gesture.depth.solve_pose3d`,
-Section 7), then writes and keys the changed solving bones at the current frame. Every
+Section 7; with ``DepthOptions.limb_labels``, also with symmetric limbs' labels exchanged,
+keeping the labelling the joints' ranges support, :mod:`gesture_pose.core.gesture.depth.labels`),
+then writes and keys the changed solving bones at the current frame. Every
 Pose starts from the bind pose of the solving bones, so posing again after editing the
 drawing does not drift; bones outside the solving skeleton keep their local rotations.
 
@@ -23,6 +25,7 @@ import numpy as np
 from ...core.camera import Camera
 from ...core.exceptions import InputError
 from ...core.gesture.depth import DepthOptions, Pose3DResult, flip_depth, solve_pose3d, start
+from ...core.gesture.depth.labels import LabelChoice, choose_labels
 from ...core.gesture.types import Embedding2D
 from ..operator_utils import (
     GesturePoseOperatorMixin,
@@ -50,6 +53,9 @@ class PoseDrawingReport:
             ``"write"``).
         warnings: Notes from reading the armature (e.g. rotation locks of an imported
             rig's bones that do not fall on the axes it is solved in).
+        labels: The choice between left/right labellings of the fit
+            (``DepthOptions.limb_labels``), None when off; ``embedding`` has the chosen
+            labels.
     """
 
     embedding: Embedding2D
@@ -58,6 +64,7 @@ class PoseDrawingReport:
     seconds: float
     timings: dict
     warnings: tuple[str, ...] = ()
+    labels: LabelChoice | None = None
 
 
 def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
@@ -97,9 +104,17 @@ def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
     # object (an imported Y-up rig's object is turned to stand: start.rig_up tells them).
     up = start.rig_up(embedding.solving, data.matrix_world[:3, 2])
     options = replace(options or DepthOptions(), rest_up=tuple(float(v) for v in up))
-    result = solve_pose3d(data.skeleton, embedding, camera, data.pose, lock_rotation=lock,
-                          ik_limits=limits, pinned=data.pinned, options=options,
-                          limit_axes=axes)
+    rig = {"lock_rotation": lock, "ik_limits": limits, "pinned": data.pinned,
+           "limit_axes": axes}
+    choice = None
+    if options.limb_labels:
+        # The 3D pose tells apart left/right labellings the 2D fit guessed (ours).
+        choice = choose_labels(data.skeleton, embedding, camera, data.pose, options=options,
+                               **rig)
+        embedding, result = choice.embedding, choice.result
+    else:
+        result = solve_pose3d(data.skeleton, embedding, camera, data.pose, options=options,
+                              **rig)
     timings["solve3d"] = time.perf_counter() - t1
     tick(0.95)
     t2 = time.perf_counter()
@@ -114,7 +129,7 @@ def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
     timings["write"] = time.perf_counter() - t2
     tick(1.0)
     return PoseDrawingReport(embedding, result, tuple(written), time.perf_counter() - t0,
-                             timings, data.warnings)
+                             timings, data.warnings, choice)
 
 
 def flip_limb_depth(arm_obj: bpy.types.Object, bone_name: str, camera: Camera, *,

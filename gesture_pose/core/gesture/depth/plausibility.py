@@ -454,3 +454,65 @@ def arm_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
             for k, x in zip((upper, fore) if fore_too else (upper,), v, strict=False):
                 sides[k] = _depth_side(x, forward)
     return sides
+
+
+def leg_costs(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray, pose: Pose,
+              front: np.ndarray, up: np.ndarray, limits: LegLimits = LegLimits()
+              ) -> np.ndarray:
+    """:func:`leg_cost` of each leg as posed (:func:`leg_chains`), degrees, ``(legs,)``.
+
+    The same reading as :func:`leg_sides` without mirroring: each leg's rest carried by
+    its solved pelvis.
+
+    Args:
+        skeleton: The full skeleton.
+        solving: The solving skeleton.
+        bones: Full-skeleton index of each solving bone, ``(m,)``.
+        pose: The pose to score.
+        front: The character's front in the rest pose, unit, world axes, ``(3,)``.
+        up: The rig's rest up, world axes, ``(3,)``.
+        limits: The ranges.
+
+    Returns:
+        One cost per leg (a leg hanging from a root bone scores 0).
+    """
+    state = skeleton.forward(pose)
+    out = []
+    for chain in leg_chains(skeleton, solving, bones, up):
+        full = [int(bones[k]) for k in chain]
+        pelvis = int(skeleton.parents[full[0]])
+        if pelvis < 0:
+            out.append(0.0)
+            continue
+        carry = state.frames[pelvis] @ skeleton.rest_frames[pelvis].T
+        rest = _leg_rest(skeleton, chain, bones, carry, np.asarray(front, float))
+        v = [state.tails[b] - state.heads[b] for b in full]
+        out.append(leg_cost(v[0], v[1], v[2] if len(v) > 2 else None, rest, limits))
+    return np.array(out, dtype=float)
+
+
+def arm_costs(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray, pose: Pose,
+              front: np.ndarray, up: np.ndarray, limits: ArmLimits = ArmLimits()
+              ) -> np.ndarray:
+    """:func:`arm_cost` of each arm as posed (:func:`arm_chains`), degrees, ``(arms,)``.
+
+    Args:
+        skeleton: The full skeleton.
+        solving: The solving skeleton.
+        bones: Full-skeleton index of each solving bone, ``(m,)``.
+        pose: The pose to score.
+        front: The character's front in the rest pose, unit, world axes, ``(3,)``.
+        up: The rig's rest up, world axes, unit, ``(3,)``.
+        limits: The range.
+
+    Returns:
+        One cost per arm.
+    """
+    state = skeleton.forward(pose)
+    out = []
+    for upper, fore, chest in arm_chains(skeleton, solving, bones, up):
+        carry = state.frames[chest] @ skeleton.rest_frames[chest].T
+        down, ahead = carry @ -np.asarray(up, float), carry @ np.asarray(front, float)
+        v = [state.tails[int(bones[k])] - state.heads[int(bones[k])] for k in (upper, fore)]
+        out.append(arm_cost(v[0], v[1], down, ahead, limits))
+    return np.array(out, dtype=float)

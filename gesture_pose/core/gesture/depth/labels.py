@@ -1,0 +1,313 @@
+"""Which left/right labels of a 2D embedding the 3D pose supports: the joints' ranges (ours).
+
+An outline does not say which of two symmetric limbs is which: the 2D fit (Gesture3D
+Section 5.4) takes the left/right permutation that is least twisted and most
+front-facing, a guess. Relabelling symmetric limbs keeps every drawn position, so the
+drawing's conformity E_c (Eq. 5) and foreshortening E_v (Eqs. 6-7) stay comparable
+across labellings; what tells them apart in 3D is whether the lifted body can take the
+pose: a knee bent the wrong way, an elbow bent backwards beyond the shoulder's rotation,
+a pelvis turned half round against the chest.
+
+:func:`label_alternatives` forms the relabellings (each limb pair exchanged whole, which
+turns its root, or below its root, which crosses or uncrosses the two limbs),
+:func:`relabel` applies one to an embedding, and :func:`choose_labels` lifts each
+(:func:`.solve3d.solve_pose3d`) and keeps the 2D fit's labels unless an alternative
+whose drawing energy does not rise is clearly more plausible (:func:`pose_cost`: the
+legs' and arms' ranges of :mod:`.plausibility`, and the twist between pelvis and chest).
+
+What the ranges cannot decide: the facing. A body seen from its back and labelled as
+facing the viewer lifts to the depth mirror image of the truth with left and right
+exchanged, a reflection of a body that is itself a body, with the same joint angles:
+exactly as plausible. Only perspective (slightly) and depth orders tell the two apart;
+the drawing energies do not either (with E_b, the bind pose's pull, on for the fitted
+labels and off for a body read as turned round, the turned reading fits better on 36 of
+the Adventurer's 40 front drawings, right or wrong). Every pair exchanged at once is
+therefore left out by default (``LabelLimits.facing``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from types import SimpleNamespace
+
+import numpy as np
+
+from ...camera import Camera
+from ...skeleton import Pose, Skeleton
+from ..consistency import symmetric_limbs
+from ..types import Embedding2D, SolvingSkeleton
+from . import energies, plausibility, start
+from .solve3d import DepthOptions, Pose3DResult, solve_pose3d
+
+
+@dataclass(frozen=True)
+class LabelLimits:
+    """Thresholds of the choice between labellings.
+
+    Attributes:
+        margin: Smallest plausibility gain, degrees of :func:`pose_cost`, for an
+            alternative to replace the 2D fit's labels (the legs' and arms' own margin,
+            :class:`.plausibility.LegLimits`).
+        energy_rise: Largest relative rise of the drawing energy (E_c plus the weighted
+            E_v) over the 2D fit's labels' for an alternative to be considered. 0: the
+            relabelled drawing must be fitted at least as well. At 0.1 the 25 traced
+            drawings of the sample characters lost 0.07 % of the height (the front run
+            10.7 -> 12.5: its fitted legs, 289 degrees out of range, read crossed) for
+            no gain on the Adventurer.
+        torso_twist: Largest turn between the pelvis's and the chest's fronts about the
+            spine that costs nothing, degrees (the spine's axial rotation).
+        facing: Also compare every pair exchanged at once (the other facing). Off: the
+            ranges cannot tell it (module docstring); on the Adventurer's 40 front
+            drawings they chose it in 5, on the sample drawings in 2, one of them wrong
+            (the front run, 10.7 -> 25.9 % of the height).
+    """
+
+    margin: float = 15.0
+    energy_rise: float = 0.0
+    torso_twist: float = 60.0
+    facing: bool = False
+
+
+@dataclass(frozen=True)
+class LabelChoice:
+    """The labelling chosen and why.
+
+    Attributes:
+        result: The 3D solve of the chosen labelling.
+        embedding: The embedding with the chosen labels.
+        chosen: Index of the chosen alternative (0: the 2D fit's labels).
+        names: Name of each alternative considered (``"as fitted"``, the first pair's
+            bones for a pair exchanged whole, ``"thigh.L/thigh.R"``, and with ``" below"``
+            for one exchanged below its root; ``"all pairs"`` with ``LabelLimits.facing``).
+        swaps: Joint pairs each alternative exchanges, each ``(k, 2)`` int.
+        costs: :func:`pose_cost` of each alternative's solved pose, degrees, ``(n,)``;
+            NaN for those not solved (the fitted labels' pose within ``margin`` of
+            plausible, or a rig without left/right pairs).
+        energies: Drawing energy (E_c plus the weighted E_v) of each, ``(n,)`` (NaN
+            where not solved).
+        seconds: Wall time of the choice (the fitted labels' solve included unless it
+            was given), seconds.
+    """
+
+    result: Pose3DResult
+    embedding: Embedding2D
+    chosen: int
+    names: tuple[str, ...]
+    swaps: tuple[np.ndarray, ...]
+    costs: np.ndarray
+    energies: np.ndarray
+    seconds: float
+
+
+def label_alternatives(solving: SolvingSkeleton, facing: bool = False
+                       ) -> list[tuple[str, np.ndarray]]:
+    """The relabellings to compare: each limb pair alone, whole or below its root.
+
+    The limb pairs are :func:`..consistency.symmetric_limbs`' (a limb from the first
+    symmetric joint below the body's axis, e.g. a hip head, down to its end). A whole
+    pair exchanged turns that pair's root (a pelvis drawn facing the other way); the pair
+    below its root (the knees, ankles and toes, the hips kept) reads two limbs drawn
+    crossed as uncrossed, or the reverse.
+
+    Args:
+        solving: The solving skeleton.
+        facing: Also every pair at once (``"all pairs"``: the character seen from its
+            other side), which the joints' ranges cannot tell from the 2D fit's labels
+            (see the module docstring).
+
+    Returns:
+        ``[(name, joint pairs to exchange (k, 2) int)]``, the 2D fit's labels first
+        (no pairs); empty pairs only there.
+    """
+    limbs = symmetric_limbs(SimpleNamespace(solving=solving))
+    out = [("as fitted", np.zeros((0, 2), int))]
+    if not limbs:
+        return out
+    if facing:
+        out.append(("all pairs", np.concatenate(limbs)))
+    for limb in limbs:
+        a, b = (solving.joint_bones[int(j)].rpartition(" ")[0] for j in limb[0])
+        if len(limbs) > 1:
+            out.append((f"{a}/{b}", limb))
+        if len(limb) > 1:
+            # The limbs below their roots: two limbs drawn crossed, or uncrossed.
+            c, d = (solving.joint_bones[int(j)].rpartition(" ")[0] for j in limb[1])
+            out.append((f"{c}/{d} below", limb[1:]))
+    return out
+
+
+def relabel(embedding: Embedding2D, pairs: np.ndarray) -> Embedding2D:
+    """The embedding with the joints of ``pairs`` exchanged (same drawn positions).
+
+    Every joint-indexed field moves with its label (position, visibility, radius, side,
+    matched samples); so do the bones ending at exchanged joints (their matched contour
+    pieces) and the occlusions between them.
+
+    Args:
+        embedding: The 2D embedding.
+        pairs: Joint pairs to exchange, ``(k, 2)`` int.
+
+    Returns:
+        The relabelled embedding.
+    """
+    s = embedding.solving
+    pairs = np.asarray(pairs, int).reshape(-1, 2)
+    perm = np.arange(s.n_joints)
+    perm[pairs[:, 0]], perm[pairs[:, 1]] = pairs[:, 1], pairs[:, 0]
+    tails = np.asarray(s.tail_joint)
+    bone_of = np.full(s.n_joints, -1)
+    bone_of[tails] = np.arange(s.n_bones)
+    bperm = bone_of[perm[tails]]
+    bperm = np.where(bperm >= 0, bperm, np.arange(s.n_bones))
+
+    def joints(field):
+        return field[perm] if len(field) == s.n_joints else field
+
+    return replace(
+        embedding,
+        joints2d=embedding.joints2d[perm],
+        joint_visible=joints(np.asarray(embedding.joint_visible)),
+        joint_radius=joints(np.asarray(embedding.joint_radius)),
+        joint_side=joints(np.asarray(embedding.joint_side)),
+        joint_segments=(tuple(embedding.joint_segments[int(j)] for j in perm)
+                        if len(embedding.joint_segments) == s.n_joints
+                        else embedding.joint_segments),
+        bone_segments=tuple(embedding.bone_segments[int(k)] for k in bperm),
+        bone_segment_sides=tuple(embedding.bone_segment_sides[int(k)] for k in bperm),
+        occlusions=tuple(replace(o, front_bone=int(bperm[o.front_bone]),
+                                 back_bone=int(bperm[o.back_bone]))
+                         for o in embedding.occlusions),
+    )
+
+
+def _torso_chain(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
+                 up: np.ndarray) -> tuple[int, int] | None:
+    """Full-skeleton ``(pelvis, chest)``: the legs' parent and the arms' chest, or None."""
+    legs = plausibility.leg_chains(skeleton, solving, bones, up)
+    arms = plausibility.arm_chains(skeleton, solving, bones, up)
+    if not legs or not arms:
+        return None
+    pelvis = int(skeleton.parents[int(bones[legs[0][0]])])
+    chest = int(arms[0][2])
+    return None if pelvis < 0 or pelvis == chest else (pelvis, chest)
+
+
+def torso_twist(skeleton: Skeleton, pose: Pose, torso: tuple[int, int], front: np.ndarray,
+                up: np.ndarray) -> float:
+    """Turn between the pelvis's and the chest's fronts about the chest's up, degrees.
+
+    Args:
+        skeleton: The full skeleton.
+        pose: The pose.
+        torso: Full-skeleton ``(pelvis, chest)``.
+        front: The character's front in the rest pose, unit, ``(3,)``.
+        up: The rig's rest up, unit, ``(3,)``.
+
+    Returns:
+        The angle in ``[0, 180]`` (0 when either front lies along the chest's up).
+    """
+    state = skeleton.forward(pose)
+    carry = [state.frames[b] @ skeleton.rest_frames[b].T for b in torso]
+    axis = carry[1] @ up
+    fronts = [c @ front for c in carry]
+    flat = [f - float(f @ axis) * axis for f in fronts]
+    norms = [float(np.linalg.norm(f)) for f in flat]
+    if min(norms) < 1e-6:
+        return 0.0
+    cos = float(flat[0] @ flat[1]) / (norms[0] * norms[1])
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def pose_cost(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray, pose: Pose,
+              front: np.ndarray, up: np.ndarray, limits: LabelLimits = LabelLimits()
+              ) -> float:
+    """How far a pose lies outside the body's joint ranges, degrees (ours).
+
+    The sum of :func:`.plausibility.leg_cost` over the legs and
+    :func:`.plausibility.arm_cost` over the arms, each read on its solved pelvis or chest,
+    and the twist between pelvis and chest beyond ``limits.torso_twist``.
+
+    Args:
+        skeleton: The full skeleton.
+        solving: The solving skeleton.
+        bones: Full-skeleton index of each solving bone, ``(m,)``.
+        pose: The pose to score.
+        front: The character's front in the rest pose, unit, world axes, ``(3,)``.
+        up: The rig's rest up, unit, ``(3,)``.
+        limits: The torso's range.
+
+    Returns:
+        The cost, degrees (0 within every range).
+    """
+    cost = float(np.sum(plausibility.leg_costs(skeleton, solving, bones, pose, front, up)))
+    cost += float(np.sum(plausibility.arm_costs(skeleton, solving, bones, pose, front, up)))
+    torso = _torso_chain(skeleton, solving, bones, up)
+    if torso is not None:
+        cost += max(0.0, torso_twist(skeleton, pose, torso, front, up) - limits.torso_twist)
+    return cost
+
+
+def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
+                  pose: Pose | None = None, *, options: DepthOptions | None = None,
+                  limits: LabelLimits = LabelLimits(), fitted: Pose3DResult | None = None,
+                  **solve_kwargs) -> LabelChoice:
+    """Lift the embedding under each labelling and keep the most plausible (ours).
+
+    Each alternative of :func:`label_alternatives` is solved
+    (:func:`.solve3d.solve_pose3d` with ``options`` and ``solve_kwargs``) and scored by
+    :func:`pose_cost`. The 2D fit's labels are kept unless an alternative whose drawing
+    energy is at most ``limits.energy_rise`` above theirs costs at least
+    ``limits.margin`` less; of those, the least costly. When the fitted labels' pose
+    costs less than ``limits.margin`` none can, and the alternatives are not solved.
+
+    Args:
+        skeleton: The full skeleton.
+        embedding: The 2D embedding as fitted.
+        camera: The view.
+        pose: Current pose (:func:`.solve3d.solve_pose3d`).
+        options: 3D parameters.
+        limits: The choice's thresholds.
+        fitted: The solve of the fitted labels, when already done.
+        **solve_kwargs: ``lock_rotation``, ``ik_limits``, ``pinned``, ``limit_axes``.
+
+    Returns:
+        The choice, with every alternative's cost and energy (NaN where not solved).
+    """
+    opts = options or DepthOptions()
+    s = embedding.solving
+    alternatives = label_alternatives(s, limits.facing)
+    names = tuple(n for n, _ in alternatives)
+    swaps = tuple(p for _, p in alternatives)
+    t0 = time.perf_counter()
+    base = fitted or solve_pose3d(skeleton, embedding, camera, pose, options=opts,
+                                  **solve_kwargs)
+    up = np.asarray(opts.rest_up, float)
+    up = up / max(float(np.linalg.norm(up)), 1e-12)
+    frame = energies.view_frame(camera, s.rest_joints.mean(axis=0), opts.perspective)
+    front = start.front_direction(s, s.rest_joints, frame, up)
+    costs = np.full(len(alternatives), np.nan)
+    energy = np.full(len(alternatives), np.nan)
+    energy[0] = base.e_conformity + base.e_foreshortening
+    if front is None:  # no left/right pairs: nothing to relabel
+        return LabelChoice(base, embedding, 0, names, swaps, costs, energy,
+                           time.perf_counter() - t0)
+    costs[0] = pose_cost(skeleton, s, base.bones, base.pose, front, up, limits)
+    if costs[0] < limits.margin:
+        # No labelling can cost ``margin`` less (costs are never negative): the others
+        # are not solved.
+        return LabelChoice(base, embedding, 0, names, swaps, costs, energy,
+                           time.perf_counter() - t0)
+    results, embeddings = [base], [embedding]
+    for k, pairs in enumerate(swaps[1:], start=1):
+        emb = relabel(embedding, pairs)
+        res = solve_pose3d(skeleton, emb, camera, pose, options=opts, **solve_kwargs)
+        embeddings.append(emb)
+        results.append(res)
+        energy[k] = res.e_conformity + res.e_foreshortening
+        costs[k] = pose_cost(skeleton, s, res.bones, res.pose, front, up, limits)
+    ok = energy <= (1.0 + limits.energy_rise) * energy[0] + 1e-12
+    ok &= costs <= costs[0] - limits.margin
+    chosen = int(np.argmin(np.where(ok, costs, np.inf))) if np.any(ok) else 0
+    return LabelChoice(results[chosen], embeddings[chosen], chosen, names, swaps, costs,
+                       energy, time.perf_counter() - t0)

@@ -1,0 +1,155 @@
+"""The left/right labels of a 2D embedding chosen by the 3D pose's joint ranges (ours)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gesture_pose.core.gesture.depth import DepthOptions, labels, solve_pose3d
+from gesture_pose.core.gesture.depth.synthetic import project_embedding, solving_skeleton
+from gesture_pose.core.gesture.embedding import posed_joints
+from gesture_pose.core.gesture.types import Occlusion
+from gesture_pose.core.rotations import exp_map
+from gesture_pose.core.skeleton import Pose, Skeleton
+from tests.core.fixtures import front_camera
+from tests.core.test_gesture_depth_sides import _figure_with_arms
+
+UP = np.array([0.0, 0.0, 1.0])
+FRONT = np.array([0.0, -1.0, 0.0])  # the figure faces the front camera
+
+
+def _turned(sk: Skeleton, pose: Pose, turns) -> Pose:
+    """``pose`` with bones turned in world space, ``(bone name, axis, degrees)`` in order."""
+    for name, axis, angle in turns:
+        bone = sk.index(name)
+        state = sk.forward(pose)
+        a = np.asarray(axis, float)
+        world = exp_map(a / np.linalg.norm(a) * np.radians(angle))
+        frame = state.frames[bone]
+        pose = pose.with_rotations(np.array([bone]),
+                                   (frame.T @ world @ frame @ pose.rotations[bone])[None])
+    return pose
+
+
+def _crouch(sk: Skeleton) -> Pose:
+    """Thighs 80 degrees forward (towards the viewer) and splayed 30 degrees apart, knees
+    bent 120 degrees: a deep crouch, knees apart, feet under the hips."""
+    return _turned(sk, Pose.identity(sk.n_bones), (
+        ("thigh.L", (1, 0, 0), -80.0), ("thigh.R", (1, 0, 0), -80.0),
+        ("thigh.L", (0, 0, 1), 30.0), ("thigh.R", (0, 0, 1), -30.0),
+        ("shin.L", (1, 0, 0), 120.0), ("shin.R", (1, 0, 0), 120.0)))
+
+
+def _pairs(s, name: str) -> np.ndarray:
+    return dict(labels.label_alternatives(s, facing=True))[name]
+
+
+def test_the_alternatives_are_each_limb_pair_whole_and_below_its_root():
+    """Legs and arms, each exchanged whole (with the hip or shoulder heads) or below
+    their roots; every pair at once only when asked for (the facing)."""
+    s = solving_skeleton(_figure_with_arms())
+    names = [n for n, _ in labels.label_alternatives(s)]
+    assert names == ["as fitted", "thigh.L/thigh.R", "thigh.L/thigh.R below",
+                     "upper_arm.L/upper_arm.R", "upper_arm.L/upper_arm.R below"]
+    legs, below = _pairs(s, "thigh.L/thigh.R"), _pairs(s, "thigh.L/thigh.R below")
+    joint = s.joint_bones.index
+    assert [joint("thigh.L head"), joint("thigh.R head")] in legs.tolist()
+    assert [joint("thigh.L head"), joint("thigh.R head")] not in below.tolist()
+    assert [joint("thigh.L tail"), joint("thigh.R tail")] in below.tolist()
+    assert len(below) == len(legs) - 1 == 3
+    every = _pairs(s, "all pairs")
+    assert len(every) == 8 and "all pairs" not in names
+
+
+def test_relabel_moves_joints_bones_and_occlusions_with_their_labels():
+    sk = _figure_with_arms()
+    s = solving_skeleton(sk)
+    cam = front_camera()
+    emb = project_embedding(sk, s, _crouch(sk), cam, radius=np.linspace(0.03, 0.08, s.n_joints))
+    bone = {sk.names[b]: k for k, b in enumerate(s.bones)}
+    pieces = tuple((np.full((1, 2), float(k)),) for k in range(s.n_bones))
+    emb = labels.replace(emb, bone_segments=pieces, occlusions=(
+        Occlusion(bone["shin.L"], bone["spine"], np.zeros(2), 1.0, 2.0),))
+    pairs = _pairs(s, "thigh.L/thigh.R below")
+    out = labels.relabel(emb, pairs)
+    a, b = pairs[:, 0], pairs[:, 1]
+    np.testing.assert_array_equal(out.joints2d[a], emb.joints2d[b])
+    np.testing.assert_array_equal(out.joint_radius[b], emb.joint_radius[a])
+    hip = s.joint_bones.index("thigh.L head")
+    np.testing.assert_array_equal(out.joints2d[hip], emb.joints2d[hip])
+    # The shin ends at an exchanged joint: its matched pieces and occlusions go along.
+    assert out.bone_segments[bone["shin.L"]][0][0, 0] == bone["shin.R"]
+    assert out.bone_segments[bone["spine"]][0][0, 0] == bone["spine"]
+    assert out.occlusions[0].front_bone == bone["shin.R"]
+    assert out.occlusions[0].back_bone == bone["spine"]
+    back = labels.relabel(out, pairs)
+    np.testing.assert_array_equal(back.joints2d, emb.joints2d)
+    assert back.occlusions == emb.occlusions
+
+
+@pytest.mark.parametrize("ortho", [True, False])
+def test_a_crouch_drawn_with_crossed_leg_labels_is_uncrossed_by_the_ranges(ortho):
+    """A deep crouch, knees apart, whose 2D fit crossed the legs below the hips (each
+    knee, ankle and toe labelled as the other leg's). Lifted as labelled, the thighs cross
+    in front of the pelvis and the knees bend out of the hips' range (pose_cost 76
+    degrees, 88 through the perspective camera; the joints 0.21 m off on average); with
+    the legs' labels exchanged below the hips the drawing fits at least as well (E_c +
+    E_v 0.088 against 0.113 and 0.106) and the pose is within range (2 degrees): the
+    truth, within 0.02 m."""
+    sk = _figure_with_arms()
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=ortho)
+    pose = _crouch(sk)
+    truth = posed_joints(s, sk, pose)
+    crossed = labels.relabel(project_embedding(sk, s, pose, cam),
+                             _pairs(s, "thigh.L/thigh.R below"))
+
+    def off(joints: np.ndarray) -> float:
+        return float(np.linalg.norm(joints - joints[0] - truth + truth[0], axis=1).mean())
+
+    plain = solve_pose3d(sk, crossed, cam)
+    assert off(plain.joints3d) > 0.15
+    choice = labels.choose_labels(sk, crossed, cam, options=DepthOptions())
+    assert choice.names[choice.chosen] == "thigh.L/thigh.R below"
+    assert choice.costs[0] > 60.0 and choice.costs[choice.chosen] < 5.0
+    assert choice.energies[choice.chosen] <= choice.energies[0]
+    assert off(choice.result.joints3d) < 0.03
+    np.testing.assert_allclose(choice.embedding.joints2d[s.joint_bones.index("thigh.L tail")],
+                               cam.project(truth)[s.joint_bones.index("thigh.L tail")],
+                               atol=1e-6)
+    # The labels as drawn stay when they are right.
+    right = labels.choose_labels(sk, project_embedding(sk, s, pose, cam), cam)
+    assert right.chosen == 0 and off(right.result.joints3d) < 0.03
+
+
+def test_the_other_facing_is_as_plausible_so_the_ranges_keep_the_fit():
+    """The crouch seen from the front, every pair labelled the other way round (a 2D fit
+    that read it as seen from the back): the lifted pose is the mirror image of the truth
+    with left and right exchanged, a body with the same joint angles, so the ranges score
+    both alike and the 2D fit's labels stay (module docstring)."""
+    sk = _figure_with_arms()
+    s = solving_skeleton(sk)
+    cam = front_camera()
+    pose = _crouch(sk)
+    truth = posed_joints(s, sk, pose)
+    drawn = project_embedding(sk, s, pose, cam)
+    mirrored = labels.relabel(drawn, _pairs(s, "all pairs"))
+    costs = [labels.pose_cost(sk, s, np.asarray(s.bones), r.pose, FRONT, UP)
+             for r in (solve_pose3d(sk, e, cam) for e in (drawn, mirrored))]
+    assert abs(costs[1] - costs[0]) < 5.0
+    choice = labels.choose_labels(sk, mirrored, cam, limits=labels.LabelLimits(facing=True))
+    assert choice.chosen == 0
+    off = np.linalg.norm(choice.result.joints3d - truth, axis=1).mean()
+    assert off > 0.2  # the mirror image, left and right exchanged
+
+
+def test_a_pelvis_turned_half_round_against_the_chest_costs_the_turn_beyond_60():
+    sk = _figure_with_arms()
+    s = solving_skeleton(sk)
+    bones = np.asarray(s.bones)
+    rest = Pose.identity(sk.n_bones)
+    assert labels.pose_cost(sk, s, bones, rest, FRONT, UP) == pytest.approx(0.0, abs=1e-6)
+    turned = _turned(sk, rest, (("hips", (0, 0, 1), 100.0), ("spine", (0, 0, 1), -100.0)))
+    torso = (sk.index("hips"), sk.index("spine"))
+    assert labels.torso_twist(sk, turned, torso, FRONT, UP) == pytest.approx(100.0)
+    assert labels.pose_cost(sk, s, bones, turned, FRONT, UP) == pytest.approx(40.0, abs=1e-6)
