@@ -108,7 +108,8 @@ def label_alternatives(solving: SolvingSkeleton, facing: bool = False
     symmetric joint below the body's axis, e.g. a hip head, down to its end). A whole
     pair exchanged turns that pair's root (a pelvis drawn facing the other way); the pair
     below its root (the knees, ankles and toes, the hips kept) reads two limbs drawn
-    crossed as uncrossed, or the reverse.
+    crossed as uncrossed, or the reverse. A rig with a single limb pair (two legs and
+    no arms) has no whole exchange but with ``facing``: that is every pair at once.
 
     Args:
         solving: The solving skeleton.
