@@ -11,7 +11,7 @@ from gesture_pose.core.gesture.embedding import posed_joints
 from gesture_pose.core.gesture.types import Occlusion
 from gesture_pose.core.rotations import exp_map
 from gesture_pose.core.skeleton import Pose, Skeleton
-from tests.core.fixtures import front_camera
+from tests.core.fixtures import frame_along, front_camera
 from tests.core.test_gesture_depth_sides import _figure_with_arms
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -59,6 +59,62 @@ def test_the_alternatives_are_each_limb_pair_whole_and_below_its_root():
     assert len(below) == len(legs) - 1 == 3
     every = _pairs(s, "all pairs")
     assert len(every) == 8 and "all pairs" not in names
+
+
+def _figure_with_clavicles() -> Skeleton:
+    """:func:`_figure_with_arms` with each arm hung from a clavicle (``shoulder.L``/``.R``
+    from beside the spine's tail to the upper arm's head, the upper arm connected)."""
+    sk = _figure_with_arms()
+    names, parents = list(sk.names), list(sk.parents)
+    heads, tails = list(sk.rest_heads), list(sk.rest_tails)
+    connected = list(sk.connected)
+    spine = sk.index("spine")
+    for side in ("L", "R"):
+        upper = names.index(f"upper_arm.{side}")
+        names.append(f"shoulder.{side}")
+        parents.append(spine)
+        heads.append(np.array([0.03 if side == "L" else -0.03, 0.0, 1.55]))
+        tails.append(np.array(sk.rest_heads[upper]))
+        connected.append(False)
+        parents[upper], connected[upper] = len(names) - 1, True
+    # Parents first: the clavicles go before the bones below them.
+    order = sorted(range(len(names)), key=lambda i: _depth(parents, i))
+    index = {old: new for new, old in enumerate(order)}
+    heads, tails = np.array(heads)[order], np.array(tails)[order]
+    frames = np.stack([frame_along(t - h, 0.1 * i)
+                       for i, (h, t) in enumerate(zip(heads, tails, strict=True))])
+    n = len(names)
+    return Skeleton(names=tuple(names[i] for i in order),
+                    parents=np.array([index[parents[i]] if parents[i] >= 0 else -1
+                                      for i in order]),
+                    rest_heads=heads, rest_tails=tails, rest_frames=frames,
+                    inherit_rotation=np.ones(n, bool),
+                    connected=np.array([connected[i] for i in order]),
+                    deform=np.ones(n, bool))
+
+
+def _depth(parents: list[int], i: int) -> int:
+    d = 0
+    while parents[i] >= 0:
+        i, d = parents[i], d + 1
+    return d
+
+
+def test_arms_hung_from_clavicles_are_exchanged_below_the_upper_arms():
+    """The exchange below a limb's upper bone crosses two arms at the elbows, not at the
+    clavicles' outer ends (which exchanges the upper arms' heads: the arms whole but for
+    the clavicles' inner ends)."""
+    sk = _figure_with_clavicles()
+    s = solving_skeleton(sk)
+    joint = s.joint_bones.index
+    choice = labels.choose_labels(sk, project_embedding(sk, s, _crouch(sk),
+                                                        front_camera()), front_camera())
+    assert choice.names == ("as fitted", "thigh.L/thigh.R", "thigh.L/thigh.R below",
+                            "shoulder.L/shoulder.R", "upper_arm.L/upper_arm.R below")
+    below = choice.swaps[-1]
+    assert below.tolist() == [[joint(f"{b}.L tail"), joint(f"{b}.R tail")]
+                              for b in ("upper_arm", "forearm", "hand")]
+    assert choice.swaps[2].tolist() == _pairs(s, "thigh.L/thigh.R below").tolist()
 
 
 def test_relabel_moves_joints_bones_and_occlusions_with_their_labels():

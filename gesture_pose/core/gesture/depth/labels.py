@@ -9,11 +9,12 @@ pose: a knee bent the wrong way, an elbow bent backwards beyond the shoulder's r
 a pelvis turned half round against the chest.
 
 :func:`label_alternatives` forms the relabellings (each limb pair exchanged whole, which
-turns its root, or below its root, which crosses or uncrosses the two limbs),
-:func:`relabel` applies one to an embedding, and :func:`choose_labels` lifts each
-(:func:`.solve3d.solve_pose3d`) and keeps the 2D fit's labels unless an alternative
-whose drawing energy does not rise is clearly more plausible (:func:`pose_cost`: the
-legs' and arms' ranges of :mod:`.plausibility`, and the twist between pelvis and chest).
+turns its root, or below its upper bone, thigh or upper arm, which crosses or uncrosses
+the two limbs), :func:`relabel` applies one to an embedding, and :func:`choose_labels`
+lifts each (:func:`.solve3d.solve_pose3d`) and keeps the 2D fit's labels unless an
+alternative whose drawing energy does not rise is clearly more plausible
+(:func:`pose_cost`: the legs' and arms' ranges of :mod:`.plausibility`, and the twist
+between pelvis and chest).
 
 What the ranges cannot decide: the facing. A body seen from its back and labelled as
 facing the viewer lifts to the depth mirror image of the truth with left and right
@@ -37,7 +38,7 @@ from ...camera import Camera
 from ...skeleton import Pose, Skeleton
 from ..consistency import symmetric_limbs
 from ..types import Embedding2D, SolvingSkeleton
-from . import energies, plausibility, start
+from . import energies, ordering, plausibility, start
 from .solve3d import DepthOptions, Pose3DResult, solve_pose3d
 
 
@@ -78,8 +79,9 @@ class LabelChoice:
         embedding: The embedding with the chosen labels.
         chosen: Index of the chosen alternative (0: the 2D fit's labels).
         names: Name of each alternative considered (``"as fitted"``, the first pair's
-            bones for a pair exchanged whole, ``"thigh.L/thigh.R"``, and with ``" below"``
-            for one exchanged below its root; ``"all pairs"`` with ``LabelLimits.facing``).
+            bones for a pair exchanged whole, ``"thigh.L/thigh.R"``; for one exchanged
+            below its upper bone, the first exchanged pair's bones and ``" below"``,
+            ``"thigh.L/thigh.R below"``; ``"all pairs"`` with ``LabelLimits.facing``).
         swaps: Joint pairs each alternative exchanges, each ``(k, 2)`` int.
         costs: :func:`pose_cost` of each alternative's solved pose, degrees, ``(n,)``;
             NaN for those not solved (the fitted labels' pose within ``margin`` of
@@ -100,22 +102,47 @@ class LabelChoice:
     seconds: float
 
 
-def label_alternatives(solving: SolvingSkeleton, facing: bool = False
-                       ) -> list[tuple[str, np.ndarray]]:
-    """The relabellings to compare: each limb pair alone, whole or below its root.
+def limb_uppers(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
+                up: np.ndarray) -> np.ndarray:
+    """The solving bones two limbs cross below: thighs and upper arms, ``(k,)`` int.
+
+    The thighs of :func:`.plausibility.leg_chains` and the upper arms of
+    :func:`.plausibility.arm_chains`: an arm hung from a clavicle crosses at the elbow.
+
+    Args:
+        skeleton: The full skeleton.
+        solving: The solving skeleton.
+        bones: Full-skeleton index of each solving bone, ``(m,)``.
+        up: The rig's rest up, world axes, unit, ``(3,)``.
+
+    Returns:
+        Solving-bone indices.
+    """
+    legs = [c[0] for c in plausibility.leg_chains(skeleton, solving, bones, up)]
+    arms = [c[0] for c in plausibility.arm_chains(skeleton, solving, bones, up)]
+    return np.array(legs + arms, dtype=int)
+
+
+def label_alternatives(solving: SolvingSkeleton, facing: bool = False,
+                       uppers: np.ndarray | None = None) -> list[tuple[str, np.ndarray]]:
+    """The relabellings to compare: each limb pair alone, whole or below its upper bone.
 
     The limb pairs are :func:`..consistency.symmetric_limbs`' (a limb from the first
     symmetric joint below the body's axis, e.g. a hip head, down to its end). A whole
     pair exchanged turns that pair's root (a pelvis drawn facing the other way); the pair
-    below its root (the knees, ankles and toes, the hips kept) reads two limbs drawn
-    crossed as uncrossed, or the reverse. A rig with a single limb pair (two legs and
-    no arms) has no whole exchange but with ``facing``: that is every pair at once.
+    below its upper bone (the knees, ankles and toes, the hips kept; the elbows and
+    hands, the shoulders kept) reads two limbs drawn crossed as uncrossed, or the
+    reverse. A rig with a single limb pair (two legs and no arms) has no whole exchange
+    but with ``facing``: that is every pair at once.
 
     Args:
         solving: The solving skeleton.
         facing: Also every pair at once (``"all pairs"``: the character seen from its
             other side), which the joints' ranges cannot tell from the 2D fit's labels
             (see the module docstring).
+        uppers: Solving bones whose tails a limb's exchange below starts at
+            (:func:`limb_uppers`). None, or a limb without one of them: the limb's
+            first bone (the thigh, or an arm's clavicle where the rig has one).
 
     Returns:
         ``[(name, joint pairs to exchange (k, 2) int)]``, the 2D fit's labels first
@@ -127,14 +154,19 @@ def label_alternatives(solving: SolvingSkeleton, facing: bool = False
         return out
     if facing:
         out.append(("all pairs", np.concatenate(limbs)))
+    parent = np.asarray(solving.joint_parent)
+    ends = set() if uppers is None else {int(solving.tail_joint[int(k)]) for k in uppers}
     for limb in limbs:
         a, b = (solving.joint_bones[int(j)].rpartition(" ")[0] for j in limb[0])
         if len(limbs) > 1:
             out.append((f"{a}/{b}", limb))
-        if len(limb) > 1:
-            # The limbs below their roots: two limbs drawn crossed, or uncrossed.
-            c, d = (solving.joint_bones[int(j)].rpartition(" ")[0] for j in limb[1])
-            out.append((f"{c}/{d} below", limb[1:]))
+        first = [int(j) for j in limb[1:, 0] if int(j) in ends][:1] or (
+            [int(limb[1, 0])] if len(limb) > 1 else [])
+        if first:
+            # The limbs below their upper bones: two limbs drawn crossed, or uncrossed.
+            below = limb[[first[0] in ordering.ancestors(parent, int(j)) for j in limb[:, 0]]]
+            c, d = (solving.joint_bones[int(j)].rpartition(" ")[0] for j in below[0])
+            out.append((f"{c}/{d} below", below))
     return out
 
 
@@ -277,14 +309,15 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     """
     opts = options or DepthOptions()
     s = embedding.solving
-    alternatives = label_alternatives(s, limits.facing)
-    names = tuple(n for n, _ in alternatives)
-    swaps = tuple(p for _, p in alternatives)
     t0 = time.perf_counter()
-    base = fitted or solve_pose3d(skeleton, embedding, camera, pose, options=opts,
-                                  **solve_kwargs)
     up = np.asarray(opts.rest_up, float)
     up = up / max(float(np.linalg.norm(up)), 1e-12)
+    alternatives = label_alternatives(
+        s, limits.facing, limb_uppers(skeleton, s, np.asarray(s.bones), up))
+    names = tuple(n for n, _ in alternatives)
+    swaps = tuple(p for _, p in alternatives)
+    base = fitted or solve_pose3d(skeleton, embedding, camera, pose, options=opts,
+                                  **solve_kwargs)
     frame = energies.view_frame(camera, s.rest_joints.mean(axis=0), opts.perspective)
     front = start.front_direction(s, s.rest_joints, frame, up)
     costs = np.full(len(alternatives), np.nan)
