@@ -209,3 +209,30 @@ def test_a_pelvis_turned_half_round_against_the_chest_costs_the_turn_beyond_60()
     torso = (sk.index("hips"), sk.index("spine"))
     assert labels.torso_twist(sk, turned, torso, FRONT, UP) == pytest.approx(100.0)
     assert labels.pose_cost(sk, s, bones, turned, FRONT, UP) == pytest.approx(40.0, abs=1e-6)
+
+
+def test_an_alternative_whose_solve_fails_is_left_out(monkeypatch):
+    """The alternatives are optional: one whose 3D solve raises SolverError (a relabelled
+    drawing whose depth cues no QP meets) is not solved (NaN) and the others still
+    compete; the Pose does not fail for it."""
+    from gesture_pose.core.exceptions import SolverError
+
+    sk = _figure_with_arms()
+    s = solving_skeleton(sk)
+    cam = front_camera()
+    crossed = labels.relabel(project_embedding(sk, s, _crouch(sk), cam),
+                             _pairs(s, "thigh.L/thigh.R below"))
+    solve = labels.solve_pose3d
+    calls = []
+
+    def failing(skeleton, embedding, *args, **kwargs):
+        calls.append(embedding)
+        if len(calls) == 2:  # the first alternative: the legs exchanged whole
+            raise SolverError("The depth QP was not solved (OSQP status 'test').", {})
+        return solve(skeleton, embedding, *args, **kwargs)
+
+    monkeypatch.setattr(labels, "solve_pose3d", failing)
+    choice = labels.choose_labels(sk, crossed, cam)
+    assert choice.names[1] == "thigh.L/thigh.R" and len(calls) == len(choice.names)
+    assert np.isnan(choice.costs[1]) and np.isnan(choice.energies[1])
+    assert choice.names[choice.chosen] == "thigh.L/thigh.R below"

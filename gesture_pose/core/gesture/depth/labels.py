@@ -35,6 +35,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from ...camera import Camera
+from ...exceptions import SolverError
 from ...skeleton import Pose, Skeleton
 from ..consistency import symmetric_limbs
 from ..types import Embedding2D, SolvingSkeleton
@@ -85,7 +86,8 @@ class LabelChoice:
         swaps: Joint pairs each alternative exchanges, each ``(k, 2)`` int.
         costs: :func:`pose_cost` of each alternative's solved pose, degrees, ``(n,)``;
             NaN for those not solved (the fitted labels' pose within ``margin`` of
-            plausible, or a rig without left/right pairs).
+            plausible, a rig without left/right pairs, or a solve that raised
+            :class:`SolverError`).
         energies: Drawing energy (E_c plus the weighted E_v) of each, ``(n,)`` (NaN
             where not solved).
         seconds: Wall time of the choice (the fitted labels' solve included unless it
@@ -306,6 +308,10 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
 
     Returns:
         The choice, with every alternative's cost and energy (NaN where not solved).
+
+    Raises:
+        SolverError: The fitted labels' solve failed (an alternative's failure only
+            leaves it out).
     """
     opts = options or DepthOptions()
     s = embedding.solving
@@ -335,8 +341,14 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     results, embeddings = [base], [embedding]
     for k, pairs in enumerate(swaps[1:], start=1):
         emb = relabel(embedding, pairs)
-        res = solve_pose3d(skeleton, emb, camera, pose, options=opts, **solve_kwargs)
         embeddings.append(emb)
+        try:
+            res = solve_pose3d(skeleton, emb, camera, pose, options=opts, **solve_kwargs)
+        except SolverError:
+            # An alternative is optional: one no QP solves is left out (NaN), the
+            # Pose goes on with the others.
+            results.append(base)
+            continue
         results.append(res)
         energy[k] = res.e_conformity + res.e_foreshortening
         costs[k] = pose_cost(skeleton, s, res.bones, res.pose, front, up, limits)
