@@ -371,6 +371,8 @@ def test_pose_keys_the_labels_the_joints_ranges_choose(registered, monkeypatch):
     rep = pose_drawing.pose_from_drawing(arm, sketch, cam, insert_keys=True)
     bpy.context.view_layer.update()
     assert rep.labels.names[rep.labels.chosen] == "thigh.L/thigh.R below"
+    assert "labels thigh.L/thigh.R below exchanged" in pose_drawing.summary(rep)
+    assert "exchanged" not in pose_drawing.summary(plain)
     np.testing.assert_allclose(rep.embedding.joints2d, exact.joints2d, atol=1e-9)
     after = read_armature(arm)
     np.testing.assert_allclose(after.pose.rotations, rep.result.pose.rotations, atol=1e-5)

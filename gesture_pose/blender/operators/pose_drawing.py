@@ -159,6 +159,30 @@ def flip_limb_depth(arm_obj: bpy.types.Object, bone_name: str, camera: Camera, *
                       insert_keys=insert_keys, frame=frame)
 
 
+def summary(rep: PoseDrawingReport) -> str:
+    """The one-line report of a Pose: bones, times, coverage, depth orders and labels.
+
+    When the joints' ranges chose other left/right labels than the 2D fit's
+    (``DepthOptions.limb_labels``), the line names the exchanged pair, so the user knows
+    why a limb took the other side's outline.
+
+    Args:
+        rep: What the Pose did.
+
+    Returns:
+        The report's text.
+    """
+    orders = len(rep.result.ordering)
+    text = (f"Posed {len(rep.written)} bones in {rep.seconds:.2f} s "
+            f"(fit {rep.timings['fit']:.2f} s, 3D {rep.timings['solve3d']:.2f} s); "
+            f"drawing coverage {100 * rep.embedding.coverage:.0f}%, {orders} depth "
+            f"order{'' if orders == 1 else 's'} read from overlapping parts")
+    if rep.labels is not None and rep.labels.chosen != 0:
+        text += (f"; left/right labels {rep.labels.names[rep.labels.chosen]} exchanged "
+                 "(the joints' ranges prefer them to the fit's)")
+    return text
+
+
 def _progress(context) -> tuple[Callable[[float], None], Callable[[], None]]:
     """Progress callbacks on the window manager's cursor indicator (no-ops headless)."""
     wm = getattr(context, "window_manager", None)
@@ -200,12 +224,7 @@ class GESTUREPOSE_OT_pose_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
             end()
         for warning in (*rep.warnings, *rep.embedding.warnings, *rep.result.warnings):
             self.report({"WARNING"}, warning)
-        orders = len(rep.result.ordering)
-        report_result(self, f"Posed {len(rep.written)} bones in {rep.seconds:.2f} s "
-                            f"(fit {rep.timings['fit']:.2f} s, 3D {rep.timings['solve3d']:.2f}"
-                            f" s); drawing coverage {100 * rep.embedding.coverage:.0f}%, "
-                            f"{orders} depth order{'' if orders == 1 else 's'} read from "
-                            "overlapping parts")
+        report_result(self, summary(rep))
         return {"FINISHED"}
 
 
