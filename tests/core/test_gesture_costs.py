@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from gesture_pose.core.gesture.costs import (
     CostParams,
     crossing_room,
     crossing_stations,
+    exposed_weight,
     length_cost,
     pair_cost,
     rigid_cost,
@@ -202,16 +205,56 @@ def test_foreshortening_scales_the_short_side_with_the_bone():
                                np.array([0]), np.array([[400.0, 300.0]]), np.array([R]),
                                np.array([-1]), np.array([0]), length, params)[0, 0])
 
-    base = cost(300.0, CostParams(w_direction=0.0))  # the data terms alone (Cl = 0)
-    ours = CostParams(w_direction=0.0, foreshortening=0.5, foreshortening_from=0.5)
+    paper = CostParams(w_direction=0.0, foreshortening=0.0, exposed_conformity=False)
+    base = cost(300.0, paper)  # the data terms alone (Cl = 0)
+    ours = CostParams(w_direction=0.0, foreshortening=0.5, foreshortening_from=0.5,
+                      exposed_conformity=False)
     z = 0.5 + (300.0 - 0.5 * sigma) / 300.0
     cl = 1.0 - np.exp(-0.5 * z**2)
     np.testing.assert_allclose(cost(600.0, ours), 1.0 - (1.0 - cl) * (1.0 - base))
-    paper = CostParams(w_direction=0.0)
     assert cost(600.0, paper) > 0.999
+    # Drawn at its length, the conformity of the side it shows is the paper's.
+    assert cost(300.0, replace(ours, exposed_conformity=True)) == base
     # A shortfall within half a sigma costs what it costs in the paper.
     np.testing.assert_allclose(cost(300.0 + 0.4 * sigma, ours),
                                cost(300.0 + 0.4 * sigma, paper))
+
+
+def test_conformity_counts_only_the_side_a_bone_shows():
+    """``exposed_conformity``: the conformity term ``Ccf`` is weighted by the stretch between
+    the joint circles a bone still shows over the stretch it would show at its length (less
+    ``exposed_from`` sigmas of slack). A bone drawn at its length pays the whole ``Ccf``;
+    one foreshortened into its joints' circles (thighs pointing at the viewer) pays none; a
+    bone whose expected stretch is within the slack (a hand) always pays all of it. Off by
+    default (the paper's ``Ccf``)."""
+    assert not CostParams().exposed_conformity
+    ra, rb = np.array([20.0]), np.array([15.0])
+    # 150 px thigh, slack 10 px: the expected stretch is 150 - 35 - 10 = 105 px.
+    drawn = np.array([[150.0, 200.0, 140.0, 87.5, 50.0, 30.0]])
+    w = np.array([exposed_weight(np.array([[x]]), 150.0, ra, rb, 10.0)[0, 0]
+                  for x in drawn[0]])
+    np.testing.assert_allclose(w, [1.0, 1.0, 1.0, 0.5, 15.0 / 105.0, 0.0])
+    # A hand (30 px, radii 10 and 8): 12 px of stretch, within a 15 px slack.
+    assert exposed_weight(np.array([[18.0]]), 30.0, np.array([10.0]), np.array([8.0]),
+                          15.0)[0, 0] == 1.0
+    # In the pairwise cost: the hand-made limb (radius 30) with no outline drawn, seen at
+    # 60 px (its circles touching) when its length is 300 px: only Cl is left.
+    d = preprocess([Stroke(segment([0.0, 0.0], [500.0, 500.0], 40))])
+    sigma = CostParams().sigma_length * d.diagonal
+
+    def cost(params: CostParams) -> float:
+        return float(pair_cost(d, np.array([[100.0, 300.0]]), np.array([R]), np.array([-1]),
+                               np.array([0]), np.array([[160.0, 300.0]]), np.array([R]),
+                               np.array([-1]), np.array([0]), 300.0, params)[0, 0])
+
+    ours = CostParams(w_direction=0.0, exposed_conformity=True, foreshortening=0.5,
+                      foreshortening_from=0.5)
+    cl = length_cost(np.array(60.0), 300.0, sigma, short_sigma=max(sigma, 0.5 * 300.0),
+                     knee=0.5)
+    np.testing.assert_allclose(cost(ours), cl)
+    paper_ccf = cost(CostParams(w_direction=0.0, sigma_length=1e6, exposed_conformity=False))
+    assert paper_ccf > 0.99  # nothing drawn along it: the paper's Ccf is 1
+    assert cost(replace(ours, exposed_conformity=False)) > 0.99
 
 
 def test_problem_gives_the_view_length_only_with_view_lengths():

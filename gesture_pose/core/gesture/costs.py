@@ -13,7 +13,8 @@ continuous refinement (moved joints) share them.
 - Pairwise ``E(i, j) = 1 - (1 - Cl)(1 - Ccf)(1 - Wc Cc)`` per bone with the length term
   ``Cl`` (Eq. 2, ``sigma`` = 4% of the diagonal, ``sigma / 3`` when the drawn bone is
   longer than the bone; optionally, on the short side, at least a share of the bone's
-  length), contour conformity ``Ccf`` and consistency ``Cc``, ``Wc = 0.9``.
+  length), contour conformity ``Ccf`` (optionally only for the side a foreshortened bone
+  still shows) and consistency ``Cc``, ``Wc = 0.9``.
 - Triplet naturalness ``Cn`` on consecutive bones with ``sigma_a = pi / 3`` when the three
   joints come from the same contour, else ``pi / 6``.
 """
@@ -83,6 +84,15 @@ class CostParams:
             holds before the share above takes over: a bone drawn at full length keeps
             the paper's hold on its joints (with the share alone from the start, a bent
             arm's elbow slid 9.5 px along its upper arm, docs/gesture.md).
+        exposed_conformity: ``Ccf`` is weighted by the share of its exposed stretch (between
+            the two joint circles) a bone still shows (ours, :func:`exposed_weight`): a bone
+            foreshortened into its joints' circles has no side to conform; False gives
+            the paper's ``Ccf`` for every bone. Off by default: with ``foreshortening`` it
+            fits the test view's crouch (every joint within 4%) but breaks the token rig's
+            raised arm (docs/gesture.md); alone it leaves the crouch as it is.
+        exposed_from: Exposed stretch, in the paper's sigmas, a bone may lack before its
+            ``Ccf`` is discounted; bones whose expected exposed stretch is shorter never
+            are.
     """
 
     alpha: float = np.radians(15.0)
@@ -104,6 +114,8 @@ class CostParams:
     stacked_counterparts: float = 1.5
     foreshortening: float = 0.0
     foreshortening_from: float = 0.0
+    exposed_conformity: bool = False
+    exposed_from: float = 1.5
 
 
 def circle_alignment(drawing: Drawing, centres: np.ndarray, radii: np.ndarray,
@@ -237,7 +249,8 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     ``Ccf`` samples the bone's two outlines (offset by the interpolated joint radius) at
     ``stations`` positions; a station conforms when a contour runs there (within
     ``max(epsilon, r / 2)``) along the bone (within ``conform_angle``), and
-    ``Ccf = 1 - (left + right) / 2`` with the conforming fractions per side. ``Cc`` is 1 when
+    ``Ccf = 1 - (left + right) / 2`` with the conforming fractions per side, times
+    :func:`exposed_weight` with ``exposed_conformity``. ``Cc`` is 1 when
     the bone's axis crosses a contour its end joints come from between the two joint
     circles (see :func:`crossing_stations`; the contour must run across the axis there,
     not along it), or when both end joints
@@ -282,6 +295,9 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     pax, pay = pa[:, None, None, 0], pa[:, None, None, 1]
     nx, ny = drawing.normals[:, 0], drawing.normals[:, 1]
     t = (np.arange(stations) + 0.5) / stations
+    weight = 1.0
+    if params.exposed_conformity:
+        weight = exposed_weight(dist, length, ra, rb, params.exposed_from * sigma)
     ax, ay = pax + t * dx, pay + t * dy
     r_t = (1.0 - t)[None, None, :] * ra[:, None, None] + t[None, None, :] * rb[None, :, None]
     tol = np.maximum(eps, 0.5 * r_t)
@@ -295,7 +311,7 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
         if blocked is not None:
             ok &= ~blocked[owner]
         cover.append(np.count_nonzero(ok, axis=2) / stations)
-    ccf = 1.0 - 0.5 * (cover[0] + cover[1])
+    ccf = weight * (1.0 - 0.5 * (cover[0] + cover[1]))
     ta = crossing_stations(dist, ra, rb, eps)
     qx, qy = pax + ta * dx, pay + ta * dy
     dq, owner = drawing.lookup_xy(qx, qy)
@@ -317,6 +333,42 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     opposite = same & (sa[:, None] * sb[None, :] < 0)
     cc = np.maximum(cc, opposite.astype(float))
     return 1.0 - (1.0 - cl) * (1.0 - ccf) * (1.0 - params.w_consistency * cc)
+
+
+def exposed_weight(dist: np.ndarray, length: float, ra: np.ndarray, rb: np.ndarray,
+                   slack: float) -> np.ndarray:
+    """Share of the conformity term ``Ccf`` a bone pays for the side it shows (ours).
+
+    Inside a joint's circle the drawn outline runs around the joint, not along the bone:
+    only the stretch of the axis between the two circles has sides to conform. A bone
+    turned towards the viewer is drawn short, its joint circles close in, and that stretch
+    shrinks or vanishes (the test view's crouch: thighs drawn at a third of their length,
+    their circles overlapping); the paper's ``Ccf`` still asks for its whole outline and
+    costs such a bone 0.7-0.75 at its true place. The weight is the exposed stretch drawn,
+    ``dist - ra - rb``, over the stretch it would show at the larger of its drawn and
+    expected lengths less ``slack``, clipped to ``[0, 1]``: a bone drawn at its length, or
+    within ``slack`` of the exposed stretch, pays the whole ``Ccf``; a bone entirely within
+    its joints' circles pays none and is judged by the length term and its joints. Bones
+    whose expected exposed stretch is no longer than ``slack`` (hands, feet, clavicles, the
+    spine's links inside the torso) always pay the whole ``Ccf``: on them a few pixels of
+    shortening would buy a large discount (with no slack, the raised hand of the test
+    view slid 6% of the height up its forearm).
+
+    Args:
+        dist: Drawn bone lengths, pixels, ``(Ka, Kb)``.
+        length: Expected drawn length, pixels.
+        ra: Head radii, pixels, ``(Ka,)``.
+        rb: Tail radii, pixels, ``(Kb,)``.
+        slack: Exposed stretch a bone may lack at no discount, pixels.
+
+    Returns:
+        Weights in ``[0, 1]``, ``(Ka, Kb)``.
+    """
+    radii = ra[:, None] + rb[None, :]
+    expected = np.maximum(dist, length) - radii - slack
+    room = expected > 0.0
+    share = (dist - radii) / np.where(room, expected, 1.0)
+    return np.where(room, np.clip(share, 0.0, 1.0), 1.0)
 
 
 def crossing_room(dist: np.ndarray, ra: np.ndarray, rb: np.ndarray, eps: float) -> np.ndarray:
