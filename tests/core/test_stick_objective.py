@@ -23,12 +23,16 @@ from gesture_pose.core.stick.graph import StickFigure
 from gesture_pose.core.stick.kinematics import PoseModel
 from gesture_pose.core.stick.objective import (
     EnvPin,
+    Footprint,
     LimbPin,
     StickObjective,
     Weights,
+    _hull,
+    hull_offset,
     polygon_offset,
     project_jacobian,
 )
+from gesture_pose.core.stick.pins import foot_extents
 from gesture_pose.core.stick.refine import PackedRows, refine, refine_least_squares
 from tests.core.test_stick_figure import humanoid_skeleton
 
@@ -224,6 +228,73 @@ def test_polygon_offset_inside_and_outside():
     assert np.allclose(off, [[0, 0], [1, 0], [-1, -1]])
     seg = np.array([[0, 0], [2, 0.0]])
     assert np.allclose(polygon_offset(np.array([[1.0, 0.5]]), seg), [[0, 0.5]])
+
+
+def test_hull_offset_is_the_polygon_offset_of_the_hull():
+    rng = np.random.default_rng(5)
+    for k in (1, 2, 3, 5):
+        pts = rng.normal(size=(k, 2))
+        q = rng.normal(scale=1.5, size=(200, 2))
+        want = polygon_offset(q, _hull(pts))
+        got = hull_offset(q, np.broadcast_to(pts, (len(q), k, 2)))
+        assert np.allclose(got, want, atol=1e-12), k
+    assert np.any(np.all(got == 0, axis=1)) and np.any(np.any(got != 0, axis=1))
+
+
+def footprint_problem(rng):
+    """:func:`problem` with both ankles' soles (heel to toe) supporting the body."""
+    obj, truth = problem(rng)
+    fig = obj.model.figure
+    feet = []
+    for side in ("L", "R"):
+        j = fig.joint(f"ankle.{side}")
+        tip = int(np.flatnonzero(fig.joint_parents == j)[0])
+        feet.append(Footprint(j, tip, np.array([0.2 if side == "L" else -0.2, -0.4, 0.0]),
+                              -0.05, 0.25))
+    return dataclasses.replace(obj, support=np.array([[0.2, -0.4, 0], [-0.2, -0.4, 0]]),
+                               footprints=tuple(feet)), truth
+
+
+def test_foot_extents_reach_from_behind_the_ankle_to_the_toe():
+    sk = humanoid_skeleton()
+    fig = humanoid_figure(sk)
+    caps = capsules_from_mesh(sk)
+    ankle = fig.joint("ankle.L")
+    tip, heel, toe = foot_extents(fig, sk, caps, ankle)
+    rest = fig.joint_positions(sk.rest_heads[None], sk.rest_tails[None])[0]
+    foot = rest[tip] - rest[ankle]
+    assert fig.joint_parents[tip] == ankle
+    assert heel < 0 < toe
+    assert np.linalg.norm(foot[:2]) <= toe < np.linalg.norm(foot[:2]) + 0.1
+    assert foot_extents(fig, sk, caps, fig.joint("hand.L")) is None  # no child joint
+
+
+def test_footprints_support_along_the_posed_feet_with_exact_derivatives():
+    rng = np.random.default_rng(3)
+    obj, truth = footprint_problem(rng)
+    plain = dataclasses.replace(obj, footprints=())
+    X = truth + rng.normal(scale=0.4, size=(6, truth.size))
+    X[:, :3] = rng.normal(scale=0.2, size=(6, 3))
+    e_fp, t_fp = obj.evaluate(X, collision=False)
+    e_pl, t_pl = plain.evaluate(X, collision=False)
+    # The soles only add support area: never more balance energy, less where the centre
+    # of mass is off the ankles' segment towards the toes.
+    assert np.all(t_fp["balance"] <= t_pl["balance"] + 1e-15)
+    assert np.any(t_fp["balance"] < 0.9 * t_pl["balance"])
+    assert np.all(t_fp["balance"] > 0)  # the test's poses stand off the soles too
+    assert np.allclose(np.sum(obj.residuals(X) ** 2, 1), obj.evaluate(X)[0], rtol=1e-12)
+    h = 1e-6
+    for x in X[:3]:
+        f, g = obj.value_and_grad(x, collision=False)
+        E, _ = obj.evaluate(np.concatenate([x + h * np.eye(x.size), x - h * np.eye(x.size)]),
+                            collision=False)
+        num = (E[: x.size] - E[x.size:]) / (2 * h)
+        assert np.allclose(num, g, rtol=1e-4, atol=1e-6 * max(1.0, abs(f)))
+        r1, J = obj.residuals_and_jacobian(x, collision=False)
+        R = obj.residuals(np.concatenate([x + h * np.eye(x.size), x - h * np.eye(x.size)]),
+                          collision=False)
+        num = ((R[: x.size] - R[x.size:]) / (2 * h)).T
+        assert np.allclose(num, J, rtol=1e-4, atol=1e-5)
 
 
 def test_distance_grid_on_a_plane():

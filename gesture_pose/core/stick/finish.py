@@ -272,7 +272,7 @@ def finish_pose(objective: StickObjective, x: np.ndarray, bounds: np.ndarray,
 
 def _reach_with_body(objective: StickObjective, x: np.ndarray, bounds: np.ndarray,
                      pin: LimbPin, env_pins: tuple[EnvPin, ...], genes: np.ndarray,
-                     rounds: int = 10) -> np.ndarray:
+                     rounds: int = 40) -> np.ndarray:
     """A limb pin out of reach of the limb and the spine: the whole body turns as well.
 
     The root's rotation and translation and the limbs of the environment pins join

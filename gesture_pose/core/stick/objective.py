@@ -9,7 +9,9 @@ weights 1.0, 0.5 and 5.0:
   and its drawn node.
 - ``E_bal`` (Eqs. 7-8): squared ground-plane distance (in units of the character's
   height) from the centre of mass (bone masses from the mesh volume around each bone) to
-  the support polygon, the convex hull of the environment contacts; zero inside.
+  the support polygon, the convex hull of the environment contacts and of the soles of
+  the pinned standing feet (:class:`Footprint`: heel to toe along each posed foot, so
+  that two feet support an area and one foot a segment, not a point); zero inside.
 - ``E_att`` (Eqs. 9-10): a joint pinned to a limb stays at its parameter along the limb
   (Eq. 9); a joint pinned to the environment stays on the contact plane (Eq. 10).
 - ``E_col`` (Eq. 11): squared capsule penetrations, body against body and against the
@@ -38,6 +40,7 @@ Every term returns its gradient with respect to the bones' heads and tails; chai
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -68,6 +71,30 @@ class EnvPin:
     target: np.ndarray
     normal: np.ndarray
     stands: bool = False
+
+
+@dataclass(frozen=True)
+class Footprint:
+    """The sole of a pinned standing foot, a support area of the balance term (Eqs. 7-8).
+
+    On the ground plane it is the segment from ``heel`` to ``toe`` (world units, the
+    heel negative) along the posed foot's direction on the ground (the ankle to its toe
+    joint), about the ankle's support point: the finish stands the foot flat, its yaw
+    kept.
+
+    Attributes:
+        joint: The standing stick joint (an ankle).
+        tip: Its child stick joint (the toe).
+        point: The ankle's support point on the surface, shape ``(3,)``.
+        heel: Extent behind the ankle (negative), world units.
+        toe: Extent ahead of it, world units.
+    """
+
+    joint: int
+    tip: int
+    point: np.ndarray
+    heel: float
+    toe: float
 
 
 @dataclass(frozen=True)
@@ -159,6 +186,65 @@ def _hull(points2d: np.ndarray) -> np.ndarray:
     return pts
 
 
+@functools.lru_cache(maxsize=16)
+def _hull_indices(k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pairs ``(i, j)`` of ``k`` points (``i < j``) and the fan triangles ``(0, a, b)``."""
+    i, j = np.triu_indices(k, 1)
+    a, b = np.triu_indices(k - 1, 1)
+    return i, j, np.stack([np.zeros_like(a), a + 1, b + 1], 1)
+
+
+def hull_offset(q: np.ndarray, points: np.ndarray, closest: bool = False
+                ) -> np.ndarray | tuple[np.ndarray, ...]:
+    """Vector from the closest point of the convex hull of ``points`` to ``q``; zero inside.
+
+    Per individual: the hull of a few points (the support polygon with posed
+    footprints). Outside the hull its closest point lies on a hull edge, a segment
+    between two of the points, and every such segment lies in the hull: the offset is
+    the shortest one to any segment between two points. ``q`` is inside when it is in a
+    triangle of the first point and two others (the ray from the first point through an
+    inside ``q`` leaves the hull through an edge between two points).
+
+    Args:
+        q: Points, shape ``(P, 2)``.
+        points: Hull points per individual, shape ``(P, k, 2)``.
+        closest: Also return where the closest point is.
+
+    Returns:
+        Offsets, shape ``(P, 2)``; with ``closest``, also the closest segment's ends
+        ``i, j`` ``(P,)`` (indices into the points), its parameter ``t`` ``(P,)`` (the
+        closest point is ``(1 - t) p_i + t p_j``) and whether ``q`` is inside ``(P,)``.
+    """
+    k = points.shape[1]
+    if k == 1:
+        zero = np.zeros(len(q), int)
+        off = q - points[:, 0]
+        return (off, zero, zero, np.zeros(len(q)), np.zeros(len(q), bool)) if closest else off
+    i, j, tri = _hull_indices(k)
+    a, d = points[:, i], points[:, j] - points[:, i]
+    t = np.clip(np.einsum("psd,psd->ps", q[:, None] - a, d) /
+                np.maximum(np.einsum("psd,psd->ps", d, d), 1e-18), 0, 1)
+    off = q[:, None] - a - t[..., None] * d
+    best = np.argmin(np.einsum("psd,psd->ps", off, off), axis=1)
+    out = off[np.arange(len(q)), best]
+    inside = np.zeros(len(q), bool)
+    if k >= 3:
+        p0, p1, p2 = points[:, :1], points[:, tri[:, 1]], points[:, tri[:, 2]]
+
+        def cross(u, v):
+            return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+        qq = q[:, None]
+        c0, c1, c2 = cross(p1 - p0, qq - p0), cross(p2 - p1, qq - p1), cross(p0 - p2, qq - p2)
+        tri_in = (((c0 >= 0) & (c1 >= 0) & (c2 >= 0)) | ((c0 <= 0) & (c1 <= 0) & (c2 <= 0)))
+        tri_in &= np.abs(cross(p1 - p0, p2 - p0)) > 1e-18
+        inside = np.any(tri_in, axis=1)
+        out[inside] = 0.0
+    if closest:
+        return out, i[best], j[best], t[np.arange(len(q)), best], inside
+    return out
+
+
 def polygon_offset(q: np.ndarray, poly: np.ndarray) -> np.ndarray:
     """Vector from the closest point of a convex polygon to ``q``; zero inside.
 
@@ -204,6 +290,8 @@ class StickObjective:
         limb_pins: Joints pinned to the body.
         weights: Term weights.
         up: World up, shape ``(3,)``.
+        footprints: Soles of pinned standing feet, supporting the centre of mass with
+            ``support`` (the hull of both).
     """
 
     model: PoseModel
@@ -219,6 +307,7 @@ class StickObjective:
     limb_pins: tuple[LimbPin, ...] = ()
     weights: Weights = field(default_factory=Weights)
     up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    footprints: tuple[Footprint, ...] = ()
     _edges: np.ndarray = field(init=False, repr=False)
     _dirs: np.ndarray = field(init=False, repr=False)
     _px_scale: float = field(init=False, repr=False)
@@ -303,19 +392,122 @@ class StickObjective:
         return (com + np.einsum("a,pad->pd", W, heads[:, anchors]) +
                 np.einsum("paij,aj->pi", frames[:, anchors], v))
 
-    def _balance(self, heads, tails, grad, frames=None):
+    def _feet(self, joints: np.ndarray) -> np.ndarray:
+        """The footprints' posed directions on the ground (ankle to toe), ``(P, f, 2)``.
+
+        Args:
+            joints: Posed stick joints, shape ``(P, J, 3)``.
+        """
+        tip = [f.tip for f in self.footprints]
+        ankle = [f.joint for f in self.footprints]
+        return (joints[:, tip] - joints[:, ankle]) @ self._ground
+
+    def support_offset(self, c2: np.ndarray, feet: np.ndarray | None = None) -> np.ndarray:
+        """Offset ``(P, 2)`` of the centre of mass on the ground from the support (Eq. 8).
+
+        Args:
+            c2: Centres of mass on the ground plane, shape ``(P, 2)``.
+            feet: The footprints' directions on the ground (:meth:`_feet`), ``(P, f, 2)``.
+
+        Returns:
+            The vector from the support area's closest point, zero inside it: the hull of
+            the contacts (``support``) and, per pinned standing foot, its sole from heel
+            to toe along its direction.
+        """
+        if not self.footprints or feet is None:
+            return polygon_offset(c2, self._poly)
+        base = np.array([f.point for f in self.footprints]) @ self._ground  # (f, 2)
+        ext = np.array([[f.heel, f.toe] for f in self.footprints])  # (f, 2)
+        n = np.linalg.norm(feet, axis=-1, keepdims=True)
+        u = np.where(n > 1e-9, feet / np.maximum(n, 1e-9), 0.0)
+        soles = base[None, :, None] + ext[None, :, :, None] * u[:, :, None]  # (P, f, 2, 2)
+        pts = np.concatenate([np.broadcast_to(self._poly, (len(c2),) + self._poly.shape),
+                              soles.reshape(len(c2), -1, 2)], axis=1)
+        return hull_offset(c2, pts)
+
+    def _support_offset_jacobian(self, c2: np.ndarray, feet: np.ndarray | None
+                                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """:meth:`support_offset` and its derivatives.
+
+        Outside the support the offset is ``q - (1 - t) a - t b`` to the closest segment
+        ``a b`` (of length ``m^0.5``, direction ``d = b - a``): with ``t`` inside (0, 1)
+        its derivatives are ``N = I - d d^T / m`` in ``q``, ``-(1 - t) N + d off^T / m``
+        in ``a`` and ``-t N - d off^T / m`` in ``b``; at an end, ``I`` and ``-I``. A sole's
+        ends move with its foot's unit direction ``u = v / |v|`` (``du/dv = (I - u u^T) /
+        |v|``).
+
+        Returns:
+            ``(off (P, 2), d off / d c2 (P, 2, 2), d off / d feet (P, f, 2, 2) or None)``.
+        """
+        P = len(c2)
+        eye = np.eye(2)
+        if not self.footprints or feet is None:
+            off = polygon_offset(c2, self._poly)
+            h = 1e-7  # piecewise linear: differences are exact away from the corners
+            o = polygon_offset(np.concatenate([c2 + [h, 0.0], c2 + [0.0, h]]), self._poly)
+            dc = np.stack([o[:P] - off, o[P:] - off], axis=2) / h
+            return off, dc, None
+        nf = len(self.footprints)
+        base = np.array([f.point for f in self.footprints]) @ self._ground
+        ext = np.array([[f.heel, f.toe] for f in self.footprints])
+        n = np.linalg.norm(feet, axis=-1, keepdims=True)
+        u = np.where(n > 1e-9, feet / np.maximum(n, 1e-9), 0.0)
+        soles = base[None, :, None] + ext[None, :, :, None] * u[:, :, None]
+        k0 = len(self._poly)
+        pts = np.concatenate([np.broadcast_to(self._poly, (P,) + self._poly.shape),
+                              soles.reshape(P, -1, 2)], axis=1)
+        off, i, j, t, inside = hull_offset(c2, pts, closest=True)
+        rows = np.arange(P)
+        d = pts[rows, j] - pts[rows, i]
+        m = np.maximum(np.einsum("pd,pd->p", d, d), 1e-18)
+        N = eye - d[:, :, None] * d[:, None, :] / m[:, None, None]
+        on = ((t > 0) & (t < 1))[:, None, None]
+        dq = np.where(on, N, eye)
+        dq[inside] = 0.0
+        dod = d[:, :, None] * off[:, None, :] / m[:, None, None]
+        da = np.where(on, -(1 - t)[:, None, None] * N + dod, np.where(t[:, None, None] <= 0,
+                                                                      -eye, 0.0))
+        db = np.where(on, -t[:, None, None] * N - dod, np.where(t[:, None, None] >= 1,
+                                                               -eye, 0.0))
+        da[inside] = 0.0
+        db[inside] = 0.0
+        du = (eye - u[..., :, None] * u[..., None, :]) / np.maximum(n, 1e-9)[..., None]
+        du = np.where(n[..., None] > 1e-9, du, 0.0)  # (P, f, 2, 2)
+        df = np.zeros((P, nf, 2, 2))
+        for end, dend in ((i, da), (j, db)):
+            s_ = end - k0  # sole point index: foot s_ // 2, heel or toe s_ % 2
+            sole = s_ >= 0
+            if np.any(sole):
+                r, f, e = rows[sole], s_[sole] // 2, ext[s_[sole] // 2, s_[sole] % 2]
+                df[r, f] += e[:, None, None] * dend[sole] @ du[r, f]
+        return off, dq, df
+
+    def _balance(self, heads, tails, grad, frames=None, joints=None):
         P = heads.shape[0]
         if len(self._poly) == 0:
-            return np.zeros(P), None
+            return np.zeros(P), None, None
         m = self.masses / self.masses.sum()
         com = self._centre_of_mass(heads, tails, frames)
-        off = polygon_offset(com @ self._ground, self._poly)
+        feet = self._feet(joints) if self.footprints and joints is not None else None
+        if not grad or feet is None:
+            off = self.support_offset(com @ self._ground, feet)
+            energy = np.sum(off**2, 1) / self.height**2
+            if not grad:
+                return energy, None, None
+            gc = (2.0 * off / self.height**2) @ self._ground.T  # d |off|^2 / d q = 2 off
+            return energy, 0.5 * m[None, :, None] * gc[:, None, :], None
+        off, dc, df = self._support_offset_jacobian(com @ self._ground, feet)
         energy = np.sum(off**2, 1) / self.height**2
-        if not grad:
-            return energy, None
-        gc = (2.0 * off / self.height**2) @ self._ground.T
+        go = 2.0 * off / self.height**2
+        gc = np.einsum("pi,pij->pj", go, dc) @ self._ground.T
         g = 0.5 * m[None, :, None] * gc[:, None, :]
-        return energy, g
+        gj = None
+        if df is not None:  # the soles turn with the feet
+            gf = np.einsum("pi,pfij->pfj", go, df) @ self._ground.T  # (P, f, 3)
+            gj = np.zeros_like(joints)
+            np.add.at(gj, (slice(None), [f.tip for f in self.footprints]), gf)
+            np.add.at(gj, (slice(None), [f.joint for f in self.footprints]), -gf)
+        return energy, g, gj
 
     def _attachment(self, joints, grad):
         energy = np.zeros(joints.shape[0])
@@ -454,7 +646,7 @@ class StickObjective:
         joints = fig.joint_positions(heads, tails)
         w = self.weights
         e_p, gj_p = self._projection(joints, grad)
-        e_b, g_b = self._balance(heads, tails, grad, frames)
+        e_b, g_b, gj_b = self._balance(heads, tails, grad, frames, joints)
         e_a, gj_a = self._attachment(joints, grad)
         terms = {"projection": e_p, "balance": e_b, "attachment": e_a}
         total = w.projection * e_p + w.balance * e_b + w.attachment * e_a
@@ -471,6 +663,8 @@ class StickObjective:
         if not grad:
             return total, terms, None, None
         gj = w.projection * gj_p + w.attachment * gj_a
+        if gj_b is not None:
+            gj = gj + w.balance * gj_b
         gh, gt = np.zeros_like(heads), np.zeros_like(tails)
         tail_mask = fig.joint_at_tail
         np.add.at(gt, (slice(None), fig.joint_bones[tail_mask]), gj[:, tail_mask])
@@ -513,7 +707,8 @@ class StickObjective:
         if len(self._poly):
             m = self.masses / self.masses.sum()
             com = np.einsum("n,pnd->pd", m, 0.5 * (heads + tails))
-            bal = polygon_offset(com @ self._ground, self._poly)
+            bal = self.support_offset(com @ self._ground,
+                                      self._feet(joints) if self.footprints else None)
             out.append(np.sqrt(w.balance) * bal / self.height)
         for pin in self.env_pins:
             dist = (joints[:, pin.joint] - pin.target) @ pin.normal
@@ -607,9 +802,8 @@ class StickObjective:
         if len(self._poly):
             m = self.masses / self.masses.sum()
             com = m @ (0.5 * (heads + tails))
-            c2 = com @ self._ground
-            h = 1e-7
-            o = polygon_offset(np.stack([c2, c2 + [h, 0.0], c2 + [0.0, h]]), self._poly)
+            feet = self._feet(joints[None]) if self.footprints else None
+            o, dc, df = self._support_offset_jacobian((com @ self._ground)[None], feet)
             rs.append(sb * o[0])
         sa = np.sqrt(w.attachment) / self.height
         for pin in self.env_pins:
@@ -661,8 +855,10 @@ class StickObjective:
                   spp * dq_[present].reshape(-1, G) / self._px_scale]
             if len(self._poly):
                 dcom = np.einsum("n,ndg->dg", m, 0.5 * (Jh_ + Jt_))
-                do = np.stack([o[1] - o[0], o[2] - o[0]], 1) / h  # (2, 2): d off / d c2
-                js.append(sb * do @ self._ground.T @ dcom)
+                jb = dc[0] @ self._ground.T @ dcom
+                for k, f in enumerate(self.footprints):  # the soles turn with the feet
+                    jb = jb + df[0, k] @ self._ground.T @ (Jj_[f.tip] - Jj_[f.joint])
+                js.append(sb * jb)
             for pin in self.env_pins:
                 js.append(sa * (pin.normal @ Jj_[pin.joint])[None])
             for pin in self.limb_pins:

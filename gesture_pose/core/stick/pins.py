@@ -187,3 +187,54 @@ def resolve_pins(figure: CharacterFigure, stick: StickFigure,
     limbs = tuple(LimbPin(index(s.joint), (index(s.limb[0]), index(s.limb[1])), float(s.s))
                   for s in limb_specs)
     return tuple(env), limbs
+
+
+def foot_extents(figure: CharacterFigure, skeleton: Skeleton, caps: Capsules,
+                 joint: int, vertices: np.ndarray | None = None,
+                 weights: np.ndarray | None = None) -> tuple[int, float, float] | None:
+    """The footprint of the short chain a standing joint stands on (a foot at an ankle).
+
+    Measured at rest along the chain's direction on the ground (the joint to its child
+    stick joint, the toe, projected on the ground plane): the skin of the chain's bones
+    reaches from ``heel`` (negative: behind the joint) to ``toe`` (ahead of it). The
+    balance term (Eqs. 7-8) supports the centre of mass over the hull of these heel-to-toe
+    segments, not over the ankles alone.
+
+    Args:
+        figure: The character's stick model.
+        skeleton: Its skeleton.
+        caps: Body capsules (without a mesh, the chain's capsules give the extent).
+        joint: The standing joint (an ankle).
+        vertices: Rest mesh vertices ``(V, 3)``, or None.
+        weights: Their bone weights ``(V, n)``, or None.
+
+    Returns:
+        ``(toe joint, heel, toe)`` (world units along the foot's ground direction), or
+        None when the joint has no child stick joint or no extent on the ground.
+    """
+    kids = np.flatnonzero(figure.joint_parents == joint)
+    if kids.size == 0:
+        return None
+    up = figure.up
+    tip = int(kids[0])
+    rest = figure.joint_positions(skeleton.rest_heads[None], skeleton.rest_tails[None])[0]
+    v = rest[tip] - rest[joint]
+    v = v - up * (v @ up)
+    if np.linalg.norm(v) < 1e-9:
+        return None
+    f = v / np.linalg.norm(v)
+    below = skeleton.descendants(int(figure.joint_bones[joint]))
+    s = None
+    if vertices is not None and weights is not None and len(vertices):
+        own = np.isin(np.argmax(weights, 1), below)
+        if np.any(own):
+            s = (vertices[own] - rest[joint]) @ f
+    if s is None:
+        radius = np.zeros(skeleton.n_bones)
+        radius[caps.bones] = caps.radii
+        ends = np.concatenate([skeleton.rest_heads[below], skeleton.rest_tails[below]])
+        rr = np.concatenate([radius[below], radius[below]])
+        along = (ends - rest[joint]) @ f
+        s = np.concatenate([along - rr, along + rr])
+    heel, toe = float(min(s.min(), 0.0)), float(max(s.max(), 0.0))
+    return (tip, heel, toe) if toe - heel > 1e-6 else None
