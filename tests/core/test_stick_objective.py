@@ -19,6 +19,7 @@ from gesture_pose.core.stick.capsules import (
 )
 from gesture_pose.core.stick.environment import Environment, distance_grid
 from gesture_pose.core.stick.figure import humanoid_figure
+from gesture_pose.core.stick.finish import settle_unseen_feet
 from gesture_pose.core.stick.graph import StickFigure
 from gesture_pose.core.stick.kinematics import PoseModel
 from gesture_pose.core.stick.objective import (
@@ -295,6 +296,51 @@ def test_footprints_support_along_the_posed_feet_with_exact_derivatives():
                           collision=False)
         num = ((R[: x.size] - R[x.size:]) / (2 * h)).T
         assert np.allclose(num, J, rtol=1e-4, atol=1e-5)
+
+
+def test_unseen_feet_turn_back_without_paying_energy():
+    rng = np.random.default_rng(5)
+    obj, truth = footprint_problem(rng)
+    model, fig, sk = obj.model, obj.model.figure, obj.model.skeleton
+    up = np.array([0.0, 0.0, 1.0])
+    pins = tuple(EnvPin(f.joint, f.point, up, stands=True) for f in obj.footprints)
+    bounds = model.bounds(np.zeros(3), 0.5)
+    rest = fig.joint_positions(sk.rest_heads[None], sk.rest_tails[None])[0]
+
+    def headings(v):
+        """Per foot: its heading's angle on the ground from the shin's natural one."""
+        _, _, fr = model.forward(v[None])
+        out = []
+        for f in obj.footprints:
+            foot = sk.index(f"foot.{fig.joint_names[f.joint][-1]}")
+            r = rest[f.tip] - rest[f.joint]
+            a = (fr[0, foot] @ sk.rest_frames[foot].T @ r)[:2]
+            b = (fr[0, sk.parents[foot]] @ sk.rest_frames[sk.parents[foot]].T @ r)[:2]
+            out.append(abs(np.arctan2(a[0] * b[1] - a[1] * b[0], a @ b)))
+        return np.array(out)
+
+    x = truth.copy()
+    for side in ("L", "R"):  # both feet turned far about the shin
+        gi = next(i for i, g in enumerate(fig.groups) if g.name == f"foot.{side}")
+        x[model.group_genes[gi][2]] = 0.45
+    y = settle_unseen_feet(obj, x, bounds, pins)
+    e_x, e_y = obj.evaluate(np.stack([x, y]))[0]
+    assert e_y <= e_x + 1e-12
+    assert np.all(headings(y) <= headings(x) + 1e-9)
+    assert np.any(headings(y) < headings(x) - 0.1)
+    jx, jy = (fig.joint_positions(*model.forward(v[None])[:2])[0] for v in (x, y))
+    drawn = obj.stick.present
+    assert np.allclose(jx[drawn], jy[drawn], atol=1e-12)  # the turn moves no drawn joint
+    _, _, fx = model.forward(x[None])
+    _, _, fy = model.forward(y[None])
+    for f in obj.footprints:  # turned about the pin's normal: the sole's tilt is kept
+        b = fig.joint_bones[f.joint]
+        sole = sk.rest_frames[b].T @ up
+        assert np.isclose((fx[0, b] @ sole) @ up, (fy[0, b] @ sole) @ up, atol=1e-9)
+    # A drawn toe keeps its foot as solved.
+    seen = dataclasses.replace(obj, stick=dataclasses.replace(
+        obj.stick, present=np.ones_like(drawn), points=np.nan_to_num(obj.stick.points)))
+    assert np.array_equal(settle_unseen_feet(seen, x, bounds, pins), x)
 
 
 def test_distance_grid_on_a_plane():

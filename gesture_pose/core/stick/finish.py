@@ -309,3 +309,73 @@ def _reach_with_body(objective: StickObjective, x: np.ndarray, bounds: np.ndarra
         if np.linalg.norm(J[pin.joint] - pin.target(J)) < 1e-6:
             break
     return x
+
+
+#: Steps of :func:`settle_unseen_feet`'s scan from the natural heading to the solved one.
+SETTLE_STEPS = 10
+
+
+def settle_unseen_feet(objective: StickObjective, x: np.ndarray, bounds: np.ndarray,
+                       env_pins: tuple[EnvPin, ...]) -> np.ndarray:
+    """Turn each unseen standing foot back towards its natural heading while no energy is paid.
+
+    A pinned standing foot whose tip the drawing omits is turned only by the balance term
+    (its sole, Eqs. 7-8) and the weak comfort term, so the search leaves it turned past
+    what the support needs. Its natural heading on the ground is its rest direction
+    carried by the shin's frame (the knee's plane, which the drawing constrains). The foot
+    turns about the pin's normal through the ankle (it stays flat; no drawn joint moves)
+    by ``(1 - t)`` of the angle to that heading, ``t`` from 0 to 1 in ``SETTLE_STEPS``
+    steps: the first whose total energy (:meth:`.StickObjective.evaluate`) is not above
+    the solved pose's is kept (``t = 1``, the solved pose, always is).
+
+    Args:
+        objective: The objective with its footprints.
+        x: Finished gene vector, shape ``(G,)``.
+        bounds: Gene bounds, shape ``(G, 2)``.
+        env_pins: The environment pins (their normals).
+
+    Returns:
+        The gene vector, shape ``(G,)``.
+    """
+    model = objective.model
+    fig, sk = model.figure, model.skeleton
+    rest = fig.joint_positions(sk.rest_heads[None], sk.rest_tails[None])[0]
+    y = np.array(x, float)
+    base = None
+    for fp in objective.footprints:
+        pin = next((p for p in env_pins if p.joint == fp.joint), None)
+        bone = int(fig.joint_bones[fp.joint])
+        shin = int(sk.parents[bone])
+        if objective.stick.present[fp.tip] or pin is None or shin < 0:
+            continue
+        gi = next((i for i, g in enumerate(fig.groups)
+                   if len(g.bones) == 1 and g.bones[0] == bone and g.bases.shape[-1] == 3),
+                  None)
+        if gi is None:
+            continue
+        genes, B = model.group_genes[gi], fig.groups[gi].bases[0]
+        _, _, frames = model.forward(y[None])
+        F, n = frames[0, bone], pin.normal
+        foot = F @ (sk.rest_frames[bone].T @ (rest[fp.tip] - rest[fp.joint]))
+        natural = frames[0, shin] @ (sk.rest_frames[shin].T @ (rest[fp.tip] - rest[fp.joint]))
+        foot, natural = foot - n * (foot @ n), natural - n * (natural @ n)
+        if min(np.linalg.norm(foot), np.linalg.norm(natural)) < 1e-9:
+            continue
+        angle = np.arctan2(np.cross(foot, natural) @ n, foot @ natural)
+        cands = []
+        for t in np.linspace(0.0, 1.0, SETTLE_STEPS + 1)[:-1]:
+            R = exp_map(n * (1.0 - t) * angle)
+            g = B.T @ log_map(exp_map(B @ y[genes]) @ F.T @ R @ F)
+            if np.all((g >= bounds[genes, 0]) & (g <= bounds[genes, 1])):
+                z = y.copy()
+                z[genes] = g
+                cands.append(z)
+        if not cands:
+            continue
+        if base is None:
+            base = objective.evaluate(y[None])[0][0]
+        e = objective.evaluate(np.array(cands))[0]
+        ok = np.flatnonzero(e <= base + 1e-12 * max(abs(base), 1.0))  # rounding
+        if ok.size:
+            y, base = cands[ok[0]], e[ok[0]]
+    return y

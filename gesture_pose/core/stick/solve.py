@@ -31,7 +31,7 @@ from ..skeleton import Pose, Skeleton
 from .capsules import Capsules, bone_masses, capsules_from_mesh
 from .environment import UP_ANGLE, Environment, Seat, distance_grid, find_seat
 from .figure import CharacterFigure, character_figure, spine_joint
-from .finish import finish_pose
+from .finish import finish_pose, settle_unseen_feet
 from .genetic import GAConfig, genetic_search
 from .graph import SNAP_RADIUS, StickFigure, stick_figure_from_strokes
 from .kinematics import PoseModel
@@ -777,9 +777,11 @@ def _solve(inp: StickInput) -> StickResult:
     heads, tails, _ = model.forward(xs[order])
     joints = figure.joint_positions(heads, tails)
     keep = order[_distinct(joints, np.arange(len(xs)), inp.n_suggestions, DISTINCT * height)]
-    suggestions = [_suggestion(objective, *finish_pose(objective, xs[i], bounds, env_pins,
-                                                       limb_pins), float(score[i]), rank)
-                   for i in keep]
+    suggestions = []
+    for i in keep:
+        xf, pins_f = finish_pose(objective, xs[i], bounds, env_pins, limb_pins)
+        xf = settle_unseen_feet(objective, xf, bounds, pins_f)
+        suggestions.append(_suggestion(objective, xf, pins_f, float(score[i]), rank))
     if not suggestions or not np.isfinite(suggestions[0].energy):
         raise SolverError("The stick figure solver found no finite solution.",
                           {"generations": ga.generations})
