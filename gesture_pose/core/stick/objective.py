@@ -416,14 +416,30 @@ class StickObjective:
         """
         if not self.footprints or feet is None:
             return polygon_offset(c2, self._poly)
+        return hull_offset(c2, self._support_points(feet)[0])
+
+    def _support_points(self, feet: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The support's points on the ground: the contacts' polygon, then each sole's ends.
+
+        Args:
+            feet: The footprints' directions on the ground (:meth:`_feet`), ``(P, f, 2)``.
+
+        Returns:
+            ``(points (P, k0 + 2 f, 2), u (P, f, 2), n (P, f, 1), ext (f, 2))``: the
+            contacts' ``k0`` polygon points followed by each foot's heel and toe; the
+            feet's unit directions (0 for a foot without one) and lengths; the soles'
+            extents (heel, toe) along them, world units.
+        """
         base = np.array([f.point for f in self.footprints]) @ self._ground  # (f, 2)
         ext = np.array([[f.heel, f.toe] for f in self.footprints])  # (f, 2)
         n = np.linalg.norm(feet, axis=-1, keepdims=True)
         u = np.where(n > 1e-9, feet / np.maximum(n, 1e-9), 0.0)
         soles = base[None, :, None] + ext[None, :, :, None] * u[:, :, None]  # (P, f, 2, 2)
-        pts = np.concatenate([np.broadcast_to(self._poly, (len(c2),) + self._poly.shape),
-                              soles.reshape(len(c2), -1, 2)], axis=1)
-        return hull_offset(c2, pts)
+        P = len(feet)
+        pts = np.concatenate([np.broadcast_to(self._poly, (P,) + self._poly.shape),
+                              soles.reshape(P, -1, 2)], axis=1)
+        return pts, u, n, ext
 
     def _support_offset_jacobian(self, c2: np.ndarray, feet: np.ndarray | None
                                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -448,14 +464,8 @@ class StickObjective:
             dc = np.stack([o[:P] - off, o[P:] - off], axis=2) / h
             return off, dc, None
         nf = len(self.footprints)
-        base = np.array([f.point for f in self.footprints]) @ self._ground
-        ext = np.array([[f.heel, f.toe] for f in self.footprints])
-        n = np.linalg.norm(feet, axis=-1, keepdims=True)
-        u = np.where(n > 1e-9, feet / np.maximum(n, 1e-9), 0.0)
-        soles = base[None, :, None] + ext[None, :, :, None] * u[:, :, None]
+        pts, u, n, ext = self._support_points(feet)
         k0 = len(self._poly)
-        pts = np.concatenate([np.broadcast_to(self._poly, (P,) + self._poly.shape),
-                              soles.reshape(P, -1, 2)], axis=1)
         off, i, j, t, inside = hull_offset(c2, pts, closest=True)
         rows = np.arange(P)
         d = pts[rows, j] - pts[rows, i]
