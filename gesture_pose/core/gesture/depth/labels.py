@@ -39,8 +39,8 @@ from ...exceptions import SolverError
 from ...skeleton import Pose, Skeleton
 from ..consistency import symmetric_limbs
 from ..types import Embedding2D, SolvingSkeleton
-from . import energies, ordering, plausibility, start
-from .solve3d import DepthOptions, Pose3DResult, solve_pose3d
+from . import ordering, plausibility
+from .solve3d import DepthOptions, Pose3DResult, rest_front, solve_pose3d
 
 
 @dataclass(frozen=True)
@@ -316,16 +316,13 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     opts = options or DepthOptions()
     s = embedding.solving
     t0 = time.perf_counter()
-    up = np.asarray(opts.rest_up, float)
-    up = up / max(float(np.linalg.norm(up)), 1e-12)
+    _, up, front = rest_front(embedding, camera, opts)
     alternatives = label_alternatives(
         s, limits.facing, limb_uppers(skeleton, s, np.asarray(s.bones), up))
     names = tuple(n for n, _ in alternatives)
     swaps = tuple(p for _, p in alternatives)
     base = fitted or solve_pose3d(skeleton, embedding, camera, pose, options=opts,
                                   **solve_kwargs)
-    frame = energies.view_frame(camera, s.rest_joints.mean(axis=0), opts.perspective)
-    front = start.front_direction(s, s.rest_joints, frame, up)
     costs = np.full(len(alternatives), np.nan)
     energy = np.full(len(alternatives), np.nan)
     energy[0] = base.e_conformity + base.e_foreshortening

@@ -745,6 +745,27 @@ def _line_search(skeleton: Skeleton, setup: _Setup, pose: Pose, state, delta: np
     return trial, 2.0 * t
 
 
+def rest_front(embedding: Embedding2D, camera: Camera, options: DepthOptions
+               ) -> tuple[energies.ViewFrame, np.ndarray, np.ndarray | None]:
+    """The view frame, the rig's rest up and its front, as the joints' range checks read them.
+
+    Args:
+        embedding: The 2D embedding (its solving skeleton's rest joints).
+        camera: The view.
+        options: 3D parameters (``rest_up``, ``perspective``).
+
+    Returns:
+        ``(frame, up, front)``: the view frame at the rest joints' centre, the unit rest
+        up ``(3,)`` and the character's front in the rest pose ``(3,)``
+        (:func:`.start.front_direction`), None for a rig without left/right pairs.
+    """
+    s = embedding.solving
+    up = np.asarray(options.rest_up, float)
+    up = up / max(float(np.linalg.norm(up)), 1e-12)
+    frame = energies.view_frame(camera, s.rest_joints.mean(axis=0), options.perspective)
+    return frame, up, start.front_direction(s, s.rest_joints, frame, up)
+
+
 def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
                  pose: Pose | None = None, *, lock_rotation: np.ndarray | None = None,
                  ik_limits: np.ndarray | None = None, pinned: np.ndarray | None = None,
@@ -788,10 +809,7 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     # may tell apart mirror images the start chose between by rules (ours): the legs'
     # and the arms' sides they choose, solved again from a start on those sides.
     s = embedding.solving
-    up = np.asarray(opts.rest_up, float)
-    up = up / max(float(np.linalg.norm(up)), 1e-12)
-    frame = energies.view_frame(camera, s.rest_joints.mean(axis=0), opts.perspective)
-    front = start.front_direction(s, s.rest_joints, frame, up)
+    frame, up, front = rest_front(embedding, camera, opts)
     if front is None:
         return result
     # Bones drawn as at bind may change side too: a foot drawn end-on looks the same
