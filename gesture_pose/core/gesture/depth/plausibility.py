@@ -244,6 +244,36 @@ def _leg_rest(skeleton: Skeleton, chain: tuple[int, ...], bones: np.ndarray,
     return LegRest(carry @ thigh, carry @ front, foot)
 
 
+def _posed_legs(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
+                pose: Pose, front: np.ndarray, up: np.ndarray):
+    """Each leg of :func:`leg_chains` as posed, for :func:`leg_sides` and :func:`leg_costs`.
+
+    Args:
+        skeleton: The full skeleton.
+        solving: The solving skeleton.
+        bones: Full-skeleton index of each solving bone, ``(m,)``.
+        pose: The pose.
+        front: The character's front in the rest pose, unit, world axes, ``(3,)``.
+        up: The rig's rest up, world axes, ``(3,)``.
+
+    Yields:
+        ``(chain, rest, vectors)``: the leg's solving bones, its :class:`LegRest` carried
+        by its posed pelvis (None for a leg hanging from a root bone) and its bones' posed
+        head-to-tail vectors, each ``(3,)``.
+    """
+    state = skeleton.forward(pose)
+    front = np.asarray(front, float)
+    for chain in leg_chains(skeleton, solving, bones, up):
+        full = [int(bones[k]) for k in chain]
+        vectors = [state.tails[b] - state.heads[b] for b in full]
+        pelvis = int(skeleton.parents[full[0]])
+        if pelvis < 0:
+            yield chain, None, vectors
+            continue
+        carry = state.frames[pelvis] @ skeleton.rest_frames[pelvis].T
+        yield chain, _leg_rest(skeleton, chain, bones, carry, front), vectors
+
+
 def leg_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
               forward: np.ndarray, pose: Pose, front: np.ndarray, up: np.ndarray,
               movable: np.ndarray, limits: LegLimits = LegLimits(),
@@ -276,16 +306,10 @@ def leg_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
         where unchanged, ``(m,)``.
     """
     forward = np.asarray(forward, float) / np.linalg.norm(forward)
-    state = skeleton.forward(pose)
     sides = np.zeros(len(bones))
-    for chain in leg_chains(skeleton, solving, bones, up):
-        full = [int(bones[k]) for k in chain]
-        pelvis = int(skeleton.parents[full[0]])
-        if pelvis < 0:
+    for chain, rest, vectors in _posed_legs(skeleton, solving, bones, pose, front, up):
+        if rest is None:
             continue
-        carry = state.frames[pelvis] @ skeleton.rest_frames[pelvis].T
-        rest = _leg_rest(skeleton, chain, bones, carry, np.asarray(front, float))
-        vectors = [state.tails[b] - state.heads[b] for b in full]
         free = [bool(movable[k]) and abs(float(v @ forward)) >= min_slope * np.linalg.norm(v)
                 for k, v in zip(chain, vectors, strict=True)]
         options = []
@@ -403,6 +427,32 @@ def arm_chains(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
     return chains
 
 
+def _posed_arms(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
+                pose: Pose, front: np.ndarray, up: np.ndarray):
+    """Each arm of :func:`arm_chains` as posed, for :func:`arm_sides` and :func:`arm_costs`.
+
+    Args:
+        skeleton: The full skeleton.
+        solving: The solving skeleton.
+        bones: Full-skeleton index of each solving bone, ``(m,)``.
+        pose: The pose.
+        front: The character's front in the rest pose, unit, world axes, ``(3,)``.
+        up: The rig's rest up, world axes, unit, ``(3,)``.
+
+    Yields:
+        ``((upper, fore), down, ahead, vectors)``: the arm's solving bones, the rest down
+        and front carried by its posed chest, each ``(3,)``, and the upper arm's and
+        forearm's posed head-to-tail vectors.
+    """
+    state = skeleton.forward(pose)
+    up, front = np.asarray(up, float), np.asarray(front, float)
+    for upper, fore, chest in arm_chains(skeleton, solving, bones, up):
+        carry = state.frames[chest] @ skeleton.rest_frames[chest].T
+        vectors = [state.tails[int(bones[k])] - state.heads[int(bones[k])]
+                   for k in (upper, fore)]
+        yield (upper, fore), carry @ -up, carry @ front, vectors
+
+
 def arm_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
               forward: np.ndarray, pose: Pose, front: np.ndarray, up: np.ndarray,
               movable: np.ndarray, limits: ArmLimits = ArmLimits(),
@@ -432,13 +482,9 @@ def arm_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
         unchanged, ``(m,)``.
     """
     forward = np.asarray(forward, float) / np.linalg.norm(forward)
-    state = skeleton.forward(pose)
     sides = np.zeros(len(bones))
-    for upper, fore, chest in arm_chains(skeleton, solving, bones, up):
-        carry = state.frames[chest] @ skeleton.rest_frames[chest].T
-        down, ahead = carry @ -np.asarray(up, float), carry @ np.asarray(front, float)
-        vectors = [state.tails[int(bones[k])] - state.heads[int(bones[k])]
-                   for k in (upper, fore)]
+    for (upper, fore), down, ahead, vectors in _posed_arms(skeleton, solving, bones, pose,
+                                                          front, up):
         free = [bool(movable[k]) and abs(float(v @ forward)) >= min_slope * np.linalg.norm(v)
                 for k, v in zip((upper, fore), vectors, strict=True)]
         if not free[0]:
@@ -476,19 +522,10 @@ def leg_costs(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray, p
     Returns:
         One cost per leg (a leg hanging from a root bone scores 0).
     """
-    state = skeleton.forward(pose)
-    out = []
-    for chain in leg_chains(skeleton, solving, bones, up):
-        full = [int(bones[k]) for k in chain]
-        pelvis = int(skeleton.parents[full[0]])
-        if pelvis < 0:
-            out.append(0.0)
-            continue
-        carry = state.frames[pelvis] @ skeleton.rest_frames[pelvis].T
-        rest = _leg_rest(skeleton, chain, bones, carry, np.asarray(front, float))
-        v = [state.tails[b] - state.heads[b] for b in full]
-        out.append(leg_cost(v[0], v[1], v[2] if len(v) > 2 else None, rest, limits))
-    return np.array(out, dtype=float)
+    return np.array([0.0 if rest is None else
+                     leg_cost(v[0], v[1], v[2] if len(v) > 2 else None, rest, limits)
+                     for _, rest, v in _posed_legs(skeleton, solving, bones, pose, front, up)],
+                    dtype=float)
 
 
 def arm_costs(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray, pose: Pose,
@@ -508,11 +545,6 @@ def arm_costs(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray, p
     Returns:
         One cost per arm.
     """
-    state = skeleton.forward(pose)
-    out = []
-    for upper, fore, chest in arm_chains(skeleton, solving, bones, up):
-        carry = state.frames[chest] @ skeleton.rest_frames[chest].T
-        down, ahead = carry @ -np.asarray(up, float), carry @ np.asarray(front, float)
-        v = [state.tails[int(bones[k])] - state.heads[int(bones[k])] for k in (upper, fore)]
-        out.append(arm_cost(v[0], v[1], down, ahead, limits))
-    return np.array(out, dtype=float)
+    return np.array([arm_cost(v[0], v[1], down, ahead, limits)
+                     for _, down, ahead, v in _posed_arms(skeleton, solving, bones, pose,
+                                                          front, up)], dtype=float)
