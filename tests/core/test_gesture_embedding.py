@@ -399,6 +399,46 @@ def test_limb_resolves_unfold_a_limb_the_search_left_folded():
     assert kept == 0 and np.array_equal(same.positions, folded)
 
 
+def test_limb_resolves_after_the_refinement_keep_only_a_better_walk():
+    """``refined_resolves``: the limb re-solves run again from the refined solution and,
+    when one is kept, the walk refines the result again; it replaces the solution only
+    with a lower energy at no less coverage. From a folded forearm (as a refinement can
+    leave it) the arm unfolds; from the unfolded arm nothing changes; off, nothing runs."""
+    cam, skel, pixels, _, truth = _arm_case()
+    d = preprocess([Stroke(pixels)])
+    sol = solving_skeleton(skel)
+    ppu = cam.pixels_per_unit(6.0)
+    problem = make_problem(d, sol, ppu, truth)
+    params = GestureParams(refined_resolves=1)
+    r = R * ppu
+    contour = [contour_candidates(d, np.array([r]), bool(problem.terminal[j]), problem.params,
+                                  params.pool_candidates) for j in range(sol.n_joints)]
+    elbow, wrist = sol.joint_bones.index("b0 tail"), sol.joint_bones.index("b1 tail")
+    n = sol.n_joints
+
+    def conf_at(pos):
+        return JointCandidates(pos, np.full(n, r), np.zeros(n, int), -np.ones(n, int),
+                               -np.ones(n, int), np.zeros(n), -np.ones((n, 48), int))
+
+    folded = truth.copy()
+    folded[wrist] = truth[0] + 0.3 * (truth[1] - truth[0])
+    mid_r = np.full(n, r)
+    out, info = embedding._resolve_refined(problem, problem, contour, mid_r, conf_at(folded),
+                                           truth, params, {})
+    assert info is not None and info["energy_after"] <= info["energy_before"]
+    eps = d.epsilon
+    assert np.linalg.norm(out.positions[elbow] - truth[1]) < 1.5 * eps
+    assert np.linalg.norm(out.positions[wrist] - truth[2]) < 1.5 * eps
+    assert joint_energy(problem, out)[0] < joint_energy(problem, conf_at(folded))[0]
+    again, info = embedding._resolve_refined(problem, problem, contour, mid_r, out, truth,
+                                             params, {})
+    assert info is None and np.array_equal(again.positions, out.positions)
+    off = replace(params, refined_resolves=0)
+    same, info = embedding._resolve_refined(problem, problem, contour, mid_r,
+                                            conf_at(folded), truth, off, {})
+    assert info is None and np.array_equal(same.positions, folded)
+
+
 def test_a_limb_re_solve_is_kept_for_a_lower_penalized_energy_at_no_less_coverage():
     params = GestureParams()  # overlap_penalty 10, coverage_gain 0.02
 

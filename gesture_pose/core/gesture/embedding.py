@@ -94,6 +94,9 @@ class GestureParams:
         limb_candidates: Contour placements per joint in those re-solves.
         limb_grid: Grid points across the reach of a joint in those re-solves (their
             occlusion candidates).
+        refined_resolves: Sweeps of the limb re-solves again after the refinement, each
+            kept re-solve refined once more (ours, see :func:`_resolve_refined`); 0 skips
+            them.
     """
 
     preprocess: PreprocessParams = field(default_factory=PreprocessParams)
@@ -128,6 +131,7 @@ class GestureParams:
     limb_resolves: int = 1
     limb_candidates: int = 32
     limb_grid: float = 2.5
+    refined_resolves: int = 0
 
 
 def posed_joints(solving: SolvingSkeleton, skeleton: Skeleton, pose: Pose) -> np.ndarray:
@@ -484,6 +488,45 @@ def _limb_resolves(problem, base, contour: list[JointCandidates], mid_r: np.ndar
     return conf, kept
 
 
+def _resolve_refined(problem, base, contour: list[JointCandidates], mid_r: np.ndarray,
+                     conf: JointCandidates, reference: np.ndarray, params,
+                     cache: dict) -> tuple[JointCandidates, dict | None]:
+    """The limb re-solves run again from the refined solution, then Section 6's walk (ours).
+
+    The re-solves before the refinement start from the discrete placements, a step
+    apart; the walk then moves the rest of the body (a rigid group, a neighbouring
+    chain) and a limb whose better placement was a near tie before can win after it (the
+    token rig's raised hand in ``tests/blender/test_imported_rigs.py``, folded 13 of its
+    33 px: E_match 4.72 against 4.68 with the arm the proper rig's fit found). Each chain
+    is re-solved as in :func:`_limb_resolves` (``refined_resolves`` sweeps) with the
+    current, refined placements among its candidates; when any is kept the result is
+    refined again and replaces the solution by :func:`_limb_accepts` (a lower ``E_match``
+    counting the overlap penalty, at no less coverage).
+
+    Args:
+        problem: The matching problem the refinement used.
+        base: The problem without blocked samples (energies and assignments).
+        contour: Contour candidates per joint.
+        mid_r: Middle radius per joint, pixels, ``(J,)``.
+        conf: The refined solution.
+        reference: The character's joints in the view at the current pose, ``(J, 2)``.
+        params: Embedding parameters.
+        cache: The search's cost cache.
+
+    Returns:
+        ``(solution kept, the second walk's diagnostics or None when it is not kept)``.
+    """
+    sub = replace(params, limb_resolves=params.refined_resolves)
+    new, kept = _limb_resolves(problem, base, contour, mid_r, conf, sub, cache)
+    if not kept:
+        return conf, None
+    new, info = refine(problem, new, reference, params.refine)
+    old = (assign_contours(base, conf), joint_energy(base, conf)[0])
+    if _limb_accepts((assign_contours(base, new), joint_energy(base, new)[0]), old, params):
+        return new, info
+    return conf, None
+
+
 def _limb_accepts(new: tuple, old: tuple, params) -> bool:
     """Whether a limb's re-solve replaces the solution; both are ``(Assignment, E_match)``.
 
@@ -776,6 +819,12 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
     conf, refine_info = _refine_both(problem, conf, reference, params)
     if refine_info["pose_start"]:
         mask = 0  # the pose's start carries no permutation of the limbs
+    refine_info["refined_resolves"] = 0
+    if params.refined_resolves:
+        conf, again = _resolve_refined(problem, base, contour, mid_r, conf, reference, params,
+                                       cache)
+        if again is not None:
+            refine_info.update(again, refined_resolves=1)
     timings["refine"] = time.perf_counter() - t0
     refine_info["terminal_trials"] = trials
     refine_info["limb_resolves"] = resolved
