@@ -88,8 +88,9 @@ class CostParams:
             the two joint circles) a bone still shows (ours, :func:`exposed_weight`): a bone
             foreshortened into its joints' circles has no side to conform; False gives
             the paper's ``Ccf`` for every bone. Off by default: with ``foreshortening`` it
-            fits the test view's crouch (every joint within 4%) but breaks the token rig's
-            raised arm (docs/gesture.md); alone it leaves the crouch as it is.
+            fits the test view's crouch (every joint within 4%) but misplaces the front
+            throw's right arm in ``test_pose_drawing`` (docs/gesture.md); alone it leaves
+            the crouch as it is.
         exposed_from: Exposed stretch, in the paper's sigmas, a bone may lack before its
             ``Ccf`` is discounted; bones whose expected exposed stretch is shorter never
             are.
