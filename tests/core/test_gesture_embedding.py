@@ -355,23 +355,19 @@ def test_coverage_moves_keep_the_best_solve_the_rule_accepts(monkeypatch):
     assert solves == 2 and out.positions[1, 0] == 2.0
 
 
-def test_limb_resolves_unfold_a_limb_the_search_left_folded():
-    """A forearm laid back along the upper arm (the wrist at the shoulder's side, as the
-    coarse pass can leave it) is re-solved with the shoulder held: the elbow and the wrist
-    go to the arc's centre and the cap; a solution already there is left as it is. The
-    character's current pose is the drawn one (the naturalness term's reference angle is
-    the drawn bend; against the straight bind pose a forearm shrunk onto the elbow scores
-    lower than the drawn one, 1.46 against 1.52, with these single radii)."""
+def _folded_arm(params: GestureParams) -> SimpleNamespace:
+    """The arm case with its forearm laid back along the upper arm (the wrist at 0.3 of
+    the upper arm, as the coarse pass or a refinement can leave it): the matching problem
+    at the drawn pose, single-radius contour candidates, and ``conf_at(positions)``."""
     cam, skel, pixels, _, truth = _arm_case()
     d = preprocess([Stroke(pixels)])
     sol = solving_skeleton(skel)
     ppu = cam.pixels_per_unit(6.0)
     problem = make_problem(d, sol, ppu, truth)
-    params = GestureParams()
     r = R * ppu
     contour = [contour_candidates(d, np.array([r]), bool(problem.terminal[j]), problem.params,
                                   params.pool_candidates) for j in range(sol.n_joints)]
-    elbow, wrist = sol.joint_bones.index("b0 tail"), sol.joint_bones.index("b1 tail")
+    wrist = sol.joint_bones.index("b1 tail")
     n = sol.n_joints
 
     def conf_at(pos):
@@ -380,7 +376,23 @@ def test_limb_resolves_unfold_a_limb_the_search_left_folded():
 
     folded = truth.copy()
     folded[wrist] = truth[0] + 0.3 * (truth[1] - truth[0])
-    mid_r = np.full(n, r)
+    return SimpleNamespace(d=d, problem=problem, contour=contour, mid_r=np.full(n, r),
+                           conf_at=conf_at, truth=truth, folded=folded, wrist=wrist,
+                           elbow=sol.joint_bones.index("b0 tail"))
+
+
+def test_limb_resolves_unfold_a_limb_the_search_left_folded():
+    """A forearm laid back along the upper arm (the wrist at the shoulder's side, as the
+    coarse pass can leave it) is re-solved with the shoulder held: the elbow and the wrist
+    go to the arc's centre and the cap; a solution already there is left as it is. The
+    character's current pose is the drawn one (the naturalness term's reference angle is
+    the drawn bend; against the straight bind pose a forearm shrunk onto the elbow scores
+    lower than the drawn one, 1.46 against 1.52, with these single radii)."""
+    params = GestureParams()
+    case = _folded_arm(params)
+    d, problem, contour, mid_r = case.d, case.problem, case.contour, case.mid_r
+    conf_at, truth, folded = case.conf_at, case.truth, case.folded
+    elbow, wrist = case.elbow, case.wrist
     out, kept = embedding._limb_resolves(problem, problem, contour, mid_r, conf_at(folded),
                                          params, {})
     assert kept == 1
@@ -404,25 +416,11 @@ def test_limb_resolves_after_the_refinement_keep_only_a_better_walk():
     when one is kept, the walk refines the result again; it replaces the solution only
     with a lower energy at no less coverage. From a folded forearm (as a refinement can
     leave it) the arm unfolds; from the unfolded arm nothing changes; off, nothing runs."""
-    cam, skel, pixels, _, truth = _arm_case()
-    d = preprocess([Stroke(pixels)])
-    sol = solving_skeleton(skel)
-    ppu = cam.pixels_per_unit(6.0)
-    problem = make_problem(d, sol, ppu, truth)
     params = GestureParams(refined_resolves=1)
-    r = R * ppu
-    contour = [contour_candidates(d, np.array([r]), bool(problem.terminal[j]), problem.params,
-                                  params.pool_candidates) for j in range(sol.n_joints)]
-    elbow, wrist = sol.joint_bones.index("b0 tail"), sol.joint_bones.index("b1 tail")
-    n = sol.n_joints
-
-    def conf_at(pos):
-        return JointCandidates(pos, np.full(n, r), np.zeros(n, int), -np.ones(n, int),
-                               -np.ones(n, int), np.zeros(n), -np.ones((n, 48), int))
-
-    folded = truth.copy()
-    folded[wrist] = truth[0] + 0.3 * (truth[1] - truth[0])
-    mid_r = np.full(n, r)
+    case = _folded_arm(params)
+    d, problem, contour, mid_r = case.d, case.problem, case.contour, case.mid_r
+    conf_at, truth, folded = case.conf_at, case.truth, case.folded
+    elbow, wrist = case.elbow, case.wrist
     out, info = embedding._resolve_refined(problem, problem, contour, mid_r, conf_at(folded),
                                            truth, params, {})
     assert info is not None and info["energy_after"] <= info["energy_before"]
