@@ -145,9 +145,13 @@ class CharacterFigure:
         child = np.flatnonzero(self.joint_parents >= 0)
         return np.stack([self.joint_parents[child], child], 1)
 
+    def rest_joints(self, skeleton: Skeleton) -> np.ndarray:
+        """Joint positions in the rest pose, world units, ``(J, 3)``."""
+        return self.joint_positions(skeleton.rest_heads, skeleton.rest_tails)
+
     def edge_lengths(self, skeleton: Skeleton) -> np.ndarray:
         """Rest 3D length of each stick edge by its child joint (0 at the root), ``(J,)``."""
-        pos = self.joint_positions(skeleton.rest_heads, skeleton.rest_tails)
+        pos = self.rest_joints(skeleton)
         out = np.zeros(self.n_joints)
         child = np.flatnonzero(self.joint_parents >= 0)
         out[child] = np.linalg.norm(pos[child] - pos[self.joint_parents[child]], axis=1)

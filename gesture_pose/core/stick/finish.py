@@ -339,7 +339,7 @@ def settle_unseen_feet(objective: StickObjective, x: np.ndarray, bounds: np.ndar
     """
     model = objective.model
     fig, sk = model.figure, model.skeleton
-    rest = fig.joint_positions(sk.rest_heads[None], sk.rest_tails[None])[0]
+    rest = fig.rest_joints(sk)
     y = np.array(x, float)
     base = None
     for fp in objective.footprints:

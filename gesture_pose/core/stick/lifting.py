@@ -23,7 +23,7 @@ from .kinematics import PoseModel
 def _lifted_groups(model: PoseModel, stick: StickFigure) -> list[tuple[int, int, int, float]]:
     """``(group index, first gene, drawn end joint, length)`` of liftable limb groups."""
     sk, fig = model.skeleton, model.figure
-    rest = fig.joint_positions(sk.rest_heads, sk.rest_tails)
+    rest = fig.rest_joints(sk)
     out = []
     for gi, (grp, genes) in enumerate(zip(fig.groups, model.group_genes, strict=True)):
         if len(grp.bones) == 1:

@@ -217,7 +217,7 @@ def foot_extents(figure: CharacterFigure, skeleton: Skeleton, caps: Capsules,
         return None
     up = figure.up
     tip = int(kids[0])
-    rest = figure.joint_positions(skeleton.rest_heads[None], skeleton.rest_tails[None])[0]
+    rest = figure.rest_joints(skeleton)
     v = rest[tip] - rest[joint]
     v = v - up * (v @ up)
     if np.linalg.norm(v) < 1e-9:

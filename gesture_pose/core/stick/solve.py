@@ -71,7 +71,7 @@ FREE_ROOT_RANGE_HORIZONTAL = 0.3
 
 def _upright(figure: CharacterFigure, skeleton: Skeleton) -> bool:
     """Whether the body's main axis (root to :func:`spine_joint`) is across its facing."""
-    rest = figure.joint_positions(skeleton.rest_heads, skeleton.rest_tails)
+    rest = figure.rest_joints(skeleton)
     spine = normalize(rest[spine_joint(figure)] - rest[0])
     return bool(abs(spine @ figure.forward) < 0.7)
 #: Distinct individuals of the genetic search refined before their depth flips are tried.
@@ -203,11 +203,6 @@ class StickResult:
     refine_iterations: tuple[int, ...]
     timings: dict
     warnings: tuple[str, ...]
-
-
-def _edge_lengths(figure: CharacterFigure, skeleton: Skeleton) -> np.ndarray:
-    """Rest 3D length of each stick edge indexed by its child joint, ``(J,)``."""
-    return figure.edge_lengths(skeleton)
 
 
 def _moving_pairs(model: PoseModel, caps: Capsules) -> Capsules:
@@ -353,7 +348,7 @@ def _initial_population(model: PoseModel, bounds: np.ndarray, n: int, stick: Sti
     G = bounds.shape[0]
     pop = bounds[:, 0] + rng.random((n, G)) * (bounds[:, 1] - bounds[:, 0])
     pop[:, :3] = root_center + rng.normal(scale=0.05, size=(n, 3))
-    rest = fig.joint_positions(sk.rest_heads, sk.rest_tails)
+    rest = fig.rest_joints(sk)
     top = spine_joint(fig)
     spine_rest = normalize(rest[top] - rest[0])
     upright = _upright(fig, sk)
@@ -591,8 +586,9 @@ def _solve(inp: StickInput) -> StickResult:
         raise InputError(f"Facing must be 'front' or 'back', not {inp.facing!r}.")
     sk, cam = inp.skeleton, inp.camera
     figure, humanoid = character_figure(sk, inp.ik_limits)
+    lengths = figure.edge_lengths(sk)
     stick = inp.stick or stick_figure_from_strokes(inp.strokes, figure, inp.snap_radius,
-                                                   inp.facing, figure.edge_lengths(sk))
+                                                   inp.facing, lengths)
     warnings = [f"Left and right {p} look alike from this view: use Swap Sides if they are "
                 "wrong." for p in stick.ambiguous_sides]
     if not humanoid:
@@ -607,8 +603,7 @@ def _solve(inp: StickInput) -> StickResult:
                                        cam, standing)
     up = figure.up
     height = float(np.ptp(np.concatenate([sk.rest_heads, sk.rest_tails]) @ up))
-    lengths = _edge_lengths(figure, sk)
-    rest_joints = figure.joint_positions(sk.rest_heads, sk.rest_tails)
+    rest_joints = figure.rest_joints(sk)
     pelvis_j = 0
     base_root = sk.forward(base).heads[figure.root_bone]
     timings["setup"] = time.perf_counter() - t_start
