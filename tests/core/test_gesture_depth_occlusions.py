@@ -331,3 +331,81 @@ def test_a_contour_order_the_lifted_drawing_contradicts_is_not_forced():
     assert gap["forced"] >= forced.ordering[0].margin - 1e-6
     X = forced.joints3d
     assert float(np.max(np.abs(X[s.tail_joint[2]] - res.joints3d[s.tail_joint[2]]))) > 0.2
+
+
+def _shoulder_skeleton() -> Skeleton:
+    """A vertical torso, a shoulder offset (unconnected) out to the torso's outline and an
+    upper arm out to the right at height 0.85: the arm hangs from the torso through the
+    shoulder, two parent-child steps."""
+    heads = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.85], [R_TORSO, 0.0, 0.85]])
+    tails = np.array([[0.0, 0.0, 1.0], [R_TORSO, 0.0, 0.85], [R_TORSO + 0.3, 0.0, 0.85]])
+    return Skeleton(
+        names=("torso", "shoulder.L", "upper_arm.L"),
+        parents=np.array([-1, 0, 1]),
+        rest_heads=heads,
+        rest_tails=tails,
+        rest_frames=np.stack([frame_along(t - h) for h, t in zip(heads, tails, strict=True)]),
+        inherit_rotation=np.ones(3, bool),
+        connected=np.array([False, False, True]),
+        deform=np.ones(3, bool),
+    )
+
+
+def _shoulder_drawing(arm_behind: bool, swing: float = np.radians(50.0)):
+    """The upper arm swung ``swing`` out of the view plane, its root on the torso's side.
+
+    Behind (away from the front camera): the torso's right outline runs on past the
+    arm's root and the arm's two outlines stop on it. In front: the arm's outlines run
+    on over the torso's outline, which stops on them.
+
+    Returns:
+        ``(skeleton, camera, embedding, truth)``; the embedding has no correspondences.
+    """
+    sk = _shoulder_skeleton()
+    cam = front_camera(ortho=True)
+    turn = exp_map(np.array([0.0, 0.0, swing if arm_behind else -swing]))  # +y: away
+    rot = np.tile(np.eye(3), (3, 1, 1))
+    rot[2] = sk.rest_frames[2].T @ turn @ sk.rest_frames[2]  # local, in rest-bone axes
+    truth = Pose(rot, np.zeros((3, 3)))
+    solving = solving_skeleton(sk)
+    radius = np.full(solving.n_joints, R_ARM)
+    radius[[solving.head_joint[0], solving.tail_joint[0]]] = R_TORSO
+    base = project_embedding(sk, solving, truth, cam, radius)
+    reach = R_TORSO + 0.3 * np.cos(swing)
+    top, low = 0.85 + R_ARM, 0.85 - R_ARM
+    side = [_line(cam, (-R_TORSO, 0, 1.0), (-R_TORSO, 0, 0.0))]
+    if arm_behind:
+        side.append(_line(cam, (R_TORSO, 0, 1.0), (R_TORSO, 0, 0.0)))
+        arm = [_line(cam, (reach, 0, z), (R_TORSO, 0, z)) for z in (top, low)]
+    else:
+        side += [_line(cam, (R_TORSO, 0, 1.0), (R_TORSO, 0, top)),
+                 _line(cam, (R_TORSO, 0, 0.0), (R_TORSO, 0, low))]
+        arm = [_line(cam, (reach, 0, z), (R_TORSO - R_ARM, 0, z)) for z in (top, low)]
+    contours = tuple(side + arm)
+    emb = Embedding2D(base.solving, base.joints2d, base.joint_visible, base.joint_radius,
+                      ((),) * 3, ((),) * 3, (), contours, contours, 1.0, 0.0, epsilon=8.0)
+    return sk, cam, emb, truth
+
+
+@pytest.mark.parametrize("arm_behind", [True, False])
+def test_an_arm_whose_outlines_stop_on_the_torso_at_its_root_turns_away(arm_behind):
+    """Where the arm's outlines stop on the torso's outline at its root (the torso's
+    runs on), the arm turns away from the viewer; Eq. 8 there would only ask its root,
+    the shoulder, to lie behind. The start's own guess (the default, towards the
+    viewer) puts it in front, as without the reading."""
+    sk, cam, emb, truth = _shoulder_drawing(arm_behind)
+    s = emb.solving
+    roots = occlusions.root_junctions(emb, occlusions.find_junctions(emb.contours, 8.0))
+    assert [(r.bone, r.occluder) for r in roots] == ([(2, 0)] if arm_behind else [])
+    res = solve_pose3d(sk, emb, cam)
+    off = solve_pose3d(sk, emb, cam, options=DepthOptions(root_junctions=False))
+    labels = [c.label for c in res.ordering if c.kind == "root_junction"]
+    assert labels == (["root upper_arm.L turns behind torso"] if arm_behind else [])
+    slope = {name: float(cam.depth(r.joints3d[[s.tail_joint[2]]])[0]
+                         - cam.depth(r.joints3d[[s.head_joint[2]]])[0]) / 0.3
+             for name, r in (("read", res), ("off", off))}
+    want = np.sin(np.radians(50.0)) * (1.0 if arm_behind else -1.0)
+    assert slope["read"] == pytest.approx(want, abs=0.05)
+    assert slope["off"] == pytest.approx(-abs(want), abs=0.05)
+    truth_joints = joints_of(s, sk, truth)
+    assert np.max(np.linalg.norm(res.joints3d - truth_joints, axis=1)) < 0.02

@@ -336,9 +336,15 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
         return LabelChoice(base, embedding, 0, names, swaps, costs, energy,
                            time.perf_counter() - t0)
     results, embeddings = [base], [embedding]
+    # Joints a T-junction read from the drawing turned (an enforced order) keep their
+    # labels: the drawing decided that limb (ours).
+    turned = ordering.turned_joints(base.ordering)
     for k, pairs in enumerate(swaps[1:], start=1):
         emb = relabel(embedding, pairs)
         embeddings.append(emb)
+        if np.isin(np.asarray(pairs), turned).any():
+            results.append(base)
+            continue
         try:
             res = solve_pose3d(skeleton, emb, camera, pose, options=opts, **solve_kwargs)
         except SolverError:

@@ -22,6 +22,9 @@ is the hidden part's contour and whose top is the occluder's. The detection work
    (:func:`.ordering.occlusion_constraint`). Between two bones that share a joint (an
    intra-part T-junction) the stem bone turns away: its far joint is deeper than the
    shared one. A pair found in front of each other both ways gives no order.
+4. **Roots** (ours, :func:`root_junctions`). Outlines of a part that stop, at the part's
+   root, on the outline of the body it hangs from (an arm pulled back behind the torso):
+   the part turns away from the viewer, as the stem of an intra-part T-junction.
 
 The defaults were chosen on traced contours of known poses of the sample characters
 (whole 2D fit, 18 drawings): junction ends within half a resampling step of a contour at
@@ -261,6 +264,110 @@ def detect_junctions(embedding: Embedding2D, tolerance: float = 0.5,
     done = attribute(found, embedding, sample_bones(embedding, reach))
     return [j for j in done if j.stem_bone >= 0 and j.top_bone >= 0
             and j.stem_bone != j.top_bone]
+
+
+@dataclass(frozen=True)
+class RootJunction:
+    """A part whose outline stops on the outline of the body it hangs from, at its root.
+
+    Attributes:
+        bone: Solving bone whose outline stops (the stem's part, ``B``).
+        occluder: Its ancestor whose outline goes on past ``B``'s root (``A``).
+        point: The first junction point ``q`` read, pixels, shape ``(2,)``.
+        count: How many contour ends read it.
+    """
+
+    bone: int
+    occluder: int
+    point: np.ndarray
+    count: int = 1
+
+
+def _leaving(contour: np.ndarray, end: int, step: float) -> np.ndarray:
+    """Unit direction in which a contour leaves its end ``end`` (0 first, 1 last sample).
+
+    Measured to the first sample at least ``step`` pixels along it (else its other end).
+    """
+    pts = np.asarray(contour, float)
+    if end == 1:
+        pts = pts[::-1]
+    arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))]
+    k = min(int(np.searchsorted(arc, step)), len(pts) - 1)
+    d = pts[k] - pts[0]
+    return d / max(float(np.linalg.norm(d)), 1e-12)
+
+
+def root_junctions(embedding: Embedding2D, junctions: list[Junction], reach: float = 0.5,
+                   head_reach: float = 1.5, min_count: int = 2,
+                   max_turn: float = np.radians(45.0)) -> list[RootJunction]:
+    """T-junctions at the root of a part, on the outline of the body it hangs from (ours).
+
+    An arm pulled back behind the torso, seen from the front, is drawn with the torso's
+    outline running on past the arm's root and the arm's outlines ending on it; an arm
+    in front shows the reverse. Eq. 8 at such a junction asks little: ``q`` lies at the
+    arm's root, whose depth is its head joint's, so the arm's direction is left free.
+    What the junction says about that direction is the paper's intra-part T-junction
+    reading: the part whose outline stops turns away from the viewer at the junction.
+
+    A junction (:func:`find_junctions`) counts when ``q`` lies within ``head_reach``
+    drawn radii of the head joint of a bone ``B`` with a parent, the stem leaves ``q``
+    along ``B``'s drawn axis (within ``max_turn``), and the top contour at ``q`` is the
+    outline of an ancestor ``A`` of ``B`` that shares no joint with it (the drawn tube of ``A``
+    passes within ``reach`` radii of ``q``, as in :func:`sample_bones`). Bones are read
+    from the fitted joints and radii alone: near a root the 2D fit's correspondences
+    give the top contour to the part hanging there as often as to the body.
+
+    Args:
+        embedding: The 2D embedding.
+        junctions: Junctions from :func:`find_junctions` on ``embedding.contours``.
+        reach: Largest ``|distance to A's axis - its radius| / radius`` at ``q``.
+        head_reach: Largest distance from ``q`` to ``B``'s head joint over its radius
+            (the outline stops at about one radius from the axis).
+        min_count: Fewest contour ends that must read a pair (the part's outlines both
+            stopping there): one alone is as often wrong as right on the benchmark's
+            traced drawings.
+        max_turn: Largest angle between the stem's direction from ``q`` and ``B``'s
+            drawn axis, radians.
+
+    Returns:
+        One :class:`RootJunction` per ``(B, A)`` pair read at least ``min_count`` times.
+    """
+    s = embedding.solving
+    j, r = embedding.joints2d, embedding.joint_radius
+    eps = embedding.epsilon if embedding.epsilon > 0 else 2.0
+    parent = np.asarray(s.parent, int)
+    heads, tails = np.asarray(s.head_joint, int), np.asarray(s.tail_joint, int)
+    axis = j[tails] - j[heads]
+    axis = axis / np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
+    out: dict[tuple[int, int], RootJunction] = {}
+    for jn in junctions:
+        q = np.asarray(jn.point, float)
+        near = np.linalg.norm(j[heads] - q, axis=1) / np.maximum(r[heads], 1e-9)
+        near[parent < 0] = np.inf
+        bone = int(np.argmin(near))
+        if near[bone] > head_reach:
+            continue
+        leave = _leaving(embedding.contours[jn.stem_contour], jn.stem_end, eps)
+        if float(leave @ axis[bone]) < np.cos(max_turn):
+            continue
+        up = []
+        a = int(parent[bone])
+        while a >= 0:
+            if heads[bone] not in (heads[a], tails[a]):
+                up.append(a)
+            a = int(parent[a])
+        if not up:
+            continue
+        up = np.array(up)
+        rel = _tube_distance(q[None], j[heads[up]], j[tails[up]], r[heads[up]],
+                             r[tails[up]])[0]
+        k = int(np.argmin(rel))
+        if rel[k] <= reach:
+            key = (bone, int(up[k]))
+            n = out[key].count + 1 if key in out else 1
+            first = out[key].point if key in out else q.copy()
+            out[key] = RootJunction(bone, int(up[k]), first, n)
+    return [r for r in out.values() if r.count >= min_count]
 
 
 def radius_at(embedding: Embedding2D, bone: int, q: np.ndarray) -> float:

@@ -16,7 +16,11 @@ Two cues decide which part is in front:
   contour of an adjacent bone (the stem and top of a T), the stem bone turns away: its far
   joint is deeper than the joint it shares with the top bone.
 
-Both are read from the drawing's contours and the 2D fit's correspondences by
+A third is ours: outlines of a part that stop at its root on the outline of the body it
+hangs from (an arm pulled back behind the torso) turn the part away, as the stem of an
+intra-part T-junction (:func:`.occlusions.root_junctions`).
+
+All are read from the drawing's contours and the 2D fit's correspondences by
 :mod:`.occlusions`; the embedding's own occlusions (known poses, :mod:`.synthetic`) are
 used as well. The intra-part rule is off by default (:class:`.solve3d.DepthOptions`): on
 traced drawings of known poses it was right for only about 3 junctions in 4 and, as hard
@@ -107,7 +111,8 @@ def occlusion_constraint(embedding: Embedding2D, occ: Occlusion, scale: float,
 def ordering_constraints(embedding: Embedding2D, scale: float, names: tuple[str, ...] = (),
                          tolerance: float = 0.5, interior: float = 1.0, min_parts: int = 2,
                          overlap: float = 1.0, t_junctions: bool = False,
-                         soft: bool = False) -> list[OrderingConstraint]:
+                         soft: bool = False, root_junctions: bool = False
+                         ) -> list[OrderingConstraint]:
     """All depth-order constraints the drawing implies.
 
     The embedding's own occlusions, then those detected on its contours
@@ -127,6 +132,9 @@ def ordering_constraints(embedding: Embedding2D, scale: float, names: tuple[str,
         t_junctions: Keep the intra-part T-junctions.
         soft: Mark the orders detected on the contours ``soft`` (the embedding's own
             occlusions stay hard).
+        root_junctions: Read the T-junctions at a part's root on the outline of the
+            body it hangs from (:func:`.occlusions.root_junctions`, ours): the part turns
+            away, its tail deeper than its head.
 
     Returns:
         Occlusion (Eq. 8) and T-junction constraints, without duplicates.
@@ -150,6 +158,20 @@ def ordering_constraints(embedding: Embedding2D, scale: float, names: tuple[str,
                  else f"t_junction {stem} behind {top}")
         out.append(OrderingConstraint("t_junction", label, np.array([far]), np.ones(1),
                                       np.array([j]), np.ones(1), 0.0, soft))
+    eps = embedding.epsilon if embedding.epsilon > 0 else 2.0
+    raw = (occlusions.find_junctions(embedding.contours, eps, embedding.bridges, tolerance,
+                                     interior) if root_junctions else [])
+    turned = set()
+    for rj in occlusions.root_junctions(embedding, raw):
+        b = rj.bone
+        if b in turned:
+            continue  # the same order, read on the outline of another ancestor
+        turned.add(b)
+        label = (f"root {names[b]} turns behind {names[rj.occluder]}" if names
+                 else f"root {b} behind {rj.occluder}")
+        out.append(OrderingConstraint("root_junction", label, np.array([s.tail_joint[b]]),
+                                      np.ones(1), np.array([s.head_joint[b]]), np.ones(1),
+                                      0.0, soft))
     return out
 
 
@@ -219,6 +241,21 @@ def drawn_as_bind(constraints: list[OrderingConstraint], joint_parent: np.ndarra
                                                         if a in common)]}
         out[i] = all(agree[j] for j in links)
     return out
+
+
+TURN_KINDS = ("t_junction", "root_junction")
+"""Kinds of order that turn one bone away: its far joint deeper than its near one."""
+
+
+def turned_joints(constraints: list[OrderingConstraint]) -> np.ndarray:
+    """Joints of the enforced (not ``soft``) orders that turn a bone away, sorted, ``(k,)``.
+
+    A T-junction read from the drawing decides that bone's depth side (ours): its
+    mirror image, or another labelling of its joints, would break it.
+    """
+    return np.unique(np.array([int(j) for c in constraints
+                               if not c.soft and c.kind in TURN_KINDS
+                               for j in (*c.back, *c.front)], dtype=int))
 
 
 def violations(constraints: list[OrderingConstraint], depths: np.ndarray) -> np.ndarray:
