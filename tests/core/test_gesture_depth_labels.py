@@ -236,3 +236,34 @@ def test_an_alternative_whose_solve_fails_is_left_out(monkeypatch):
     assert choice.names[1] == "thigh.L/thigh.R" and len(calls) == len(choice.names)
     assert np.isnan(choice.costs[1]) and np.isnan(choice.energies[1])
     assert choice.names[choice.chosen] == "thigh.L/thigh.R below"
+
+
+def test_a_limb_a_drawn_t_junction_turned_keeps_its_labels():
+    """The crossed crouch above, whose fitted lift carries an enforced order read from the
+    drawing that turns the left shin away (a T-junction at its root, ``root_junction``):
+    the drawing decided that limb, so no alternative exchanges its joints (the legs'
+    two are not solved, NaN) and the fit's labels stay; the arms' are still weighed."""
+    from dataclasses import replace
+
+    from gesture_pose.core.gesture.depth.ordering import OrderingConstraint
+
+    sk = _figure_with_arms()
+    s = solving_skeleton(sk)
+    cam = front_camera()
+    crossed = labels.relabel(project_embedding(sk, s, _crouch(sk), cam),
+                             _pairs(s, "thigh.L/thigh.R below"))
+    plain = solve_pose3d(sk, crossed, cam)
+    k = s.joint_bones.index
+    turn = OrderingConstraint("root_junction", "root shin.L turns behind hips",
+                              np.array([k("shin.L tail")]), np.ones(1),
+                              np.array([k("thigh.L tail")]), np.ones(1), 0.0)
+    for order, solved in (([replace(turn, soft=True)], True), ([turn], False)):
+        choice = labels.choose_labels(sk, crossed, cam,
+                                      fitted=replace(plain, ordering=tuple(order)))
+        names = list(choice.names)
+        legs = [names.index("thigh.L/thigh.R"), names.index("thigh.L/thigh.R below")]
+        # Not enforced (soft), the order holds nothing: the legs are relabelled as above.
+        assert np.all(np.isfinite(choice.costs[legs])) == solved
+        assert (choice.names[choice.chosen] == "thigh.L/thigh.R below") == solved
+        assert np.all(np.isfinite(choice.costs[[names.index("upper_arm.L/upper_arm.R")]]))
+    assert choice.chosen == 0
