@@ -221,24 +221,25 @@ def test_foreshortening_scales_the_short_side_with_the_bone():
 
 
 def test_conformity_counts_only_the_side_a_bone_shows():
-    """``exposed_conformity``: the conformity term ``Ccf`` is weighted by the stretch between
-    the joint circles a bone still shows over the stretch it would show at its length (less
-    ``exposed_from`` sigmas of slack). A bone drawn at its length pays the whole ``Ccf``;
-    one foreshortened into its joints' circles (thighs pointing at the viewer) pays none; a
-    bone whose expected stretch is within the slack (a hand) always pays all of it. Off by
-    default (the paper's ``Ccf``)."""
+    """``exposed_conformity``: the conformity term ``Ccf`` is discounted by the share of the
+    stretch between the joint circles (at the bone's length) that a bone no longer shows,
+    beyond ``exposed_from`` sigmas of slack. A bone drawn at its length pays the whole
+    ``Ccf``; one foreshortened into its joints' circles (thighs pointing at the viewer)
+    pays only the slack's share; a bone whose stretch is within the slack (a hand) always
+    pays all of it. Off by default (the paper's ``Ccf``)."""
     assert not CostParams().exposed_conformity
     ra, rb = np.array([20.0]), np.array([15.0])
-    # 150 px thigh, slack 10 px: the expected stretch is 150 - 35 - 10 = 105 px.
-    drawn = np.array([[150.0, 200.0, 140.0, 87.5, 50.0, 30.0]])
-    w = np.array([exposed_weight(np.array([[x]]), 150.0, ra, rb, 10.0)[0, 0]
-                  for x in drawn[0]])
-    np.testing.assert_allclose(w, [1.0, 1.0, 1.0, 0.5, 15.0 / 105.0, 0.0])
+    # 150 px thigh: 150 - 35 = 115 px of stretch, 10 px of slack.
+    drawn = np.array([150.0, 200.0, 140.0, 87.5, 50.0, 30.0, 20.0])
+    w = np.array([exposed_weight(np.array([[x]]), 150.0, ra, rb, 10.0)[0, 0] for x in drawn])
+    np.testing.assert_allclose(w, [1.0, 1.0, 1.0, 62.5 / 115.0, 25.0 / 115.0, 5.0 / 115.0,
+                                   0.0])
     # A hand (30 px, radii 10 and 8): 12 px of stretch, within a 15 px slack.
     assert exposed_weight(np.array([[18.0]]), 30.0, np.array([10.0]), np.array([8.0]),
                           15.0)[0, 0] == 1.0
     # In the pairwise cost: the hand-made limb (radius 30) with no outline drawn, seen at
-    # 60 px (its circles touching) when its length is 300 px: only Cl is left.
+    # 60 px (its circles touching) when its length is 300 px: Cl and the slack's share of
+    # the paper's Ccf (1, nothing drawn) are left.
     d = preprocess([Stroke(segment([0.0, 0.0], [500.0, 500.0], 40))])
     sigma = CostParams().sigma_length * d.diagonal
 
@@ -251,7 +252,9 @@ def test_conformity_counts_only_the_side_a_bone_shows():
                       foreshortening_from=0.5)
     cl = length_cost(np.array(60.0), 300.0, sigma, short_sigma=max(sigma, 0.5 * 300.0),
                      knee=0.5)
-    np.testing.assert_allclose(cost(ours), cl)
+    share = ours.exposed_from * sigma / (300.0 - 2 * R)
+    np.testing.assert_allclose(cost(ours), 1.0 - (1.0 - cl) * (1.0 - share))
+    assert cost(ours) < cost(replace(ours, exposed_conformity=False))
     paper_ccf = cost(CostParams(w_direction=0.0, sigma_length=1e6, exposed_conformity=False))
     assert paper_ccf > 0.99  # nothing drawn along it: the paper's Ccf is 1
     assert cost(replace(ours, exposed_conformity=False)) > 0.99

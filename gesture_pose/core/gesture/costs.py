@@ -87,10 +87,11 @@ class CostParams:
         exposed_conformity: ``Ccf`` is weighted by the share of its exposed stretch (between
             the two joint circles) a bone still shows (ours, :func:`exposed_weight`): a bone
             foreshortened into its joints' circles has no side to conform; False gives
-            the paper's ``Ccf`` for every bone. Off by default: with ``foreshortening`` it
-            fits the test view's crouch (every joint within 4%) but misplaces the front
-            throw's right arm in ``test_pose_drawing`` (docs/gesture.md); alone it leaves
-            the crouch as it is.
+            the paper's ``Ccf`` for every bone. Off by default: with ``foreshortening``
+            0.5 from 1 sigma and ``GestureParams.refined_resolves`` it fits the test
+            view's crouch (every joint within 4%) and improves the means, but the 2D
+            bench quadruped's rest drawing folds its hidden far hind leg (docs/gesture.md);
+            alone it leaves the crouch as it is.
         exposed_from: Exposed stretch, in the paper's sigmas, a bone may lack before its
             ``Ccf`` is discounted; bones whose expected exposed stretch is shorter never
             are.
@@ -345,15 +346,20 @@ def exposed_weight(dist: np.ndarray, length: float, ra: np.ndarray, rb: np.ndarr
     turned towards the viewer is drawn short, its joint circles close in, and that stretch
     shrinks or vanishes (the test view's crouch: thighs drawn at a third of their length,
     their circles overlapping); the paper's ``Ccf`` still asks for its whole outline and
-    costs such a bone 0.7-0.75 at its true place. The weight is the exposed stretch drawn,
-    ``dist - ra - rb``, over the stretch it would show at the larger of its drawn and
-    expected lengths less ``slack``, clipped to ``[0, 1]``: a bone drawn at its length, or
-    within ``slack`` of the exposed stretch, pays the whole ``Ccf``; a bone entirely within
-    its joints' circles pays none and is judged by the length term and its joints. Bones
-    whose expected exposed stretch is no longer than ``slack`` (hands, feet, clavicles, the
-    spine's links inside the torso) always pay the whole ``Ccf``: on them a few pixels of
-    shortening would buy a large discount (with no slack, the raised hand of the test
-    view slid 6% of the height up its forearm).
+    costs such a bone 0.7-0.75 at its true place. The discount is the share of the bone's
+    exposed stretch (``full``: the larger of its drawn and expected lengths less both
+    radii) that is missing beyond ``slack``: the weight is
+    ``(dist - ra - rb + slack) / full``, clipped to ``[0, 1]``. A bone drawn at its length,
+    or within ``slack`` of it, pays the whole ``Ccf``; each pixel missing beyond pays
+    ``1 / full`` less, the share of the outline it no longer shows, and a bone collapsed
+    into its joints' circles still pays ``slack / full`` of it. Bones whose exposed stretch
+    is no longer than ``slack`` (hands, feet, clavicles, the spine's links inside the
+    torso) always pay the whole ``Ccf``: on them a few pixels of shortening would buy a
+    large discount (with no slack, the raised hand of the test view slid 6% of the height
+    up its forearm). The first version ramped the weight from 1 to 0 over ``full - slack``
+    only, so a bone whose stretch was a little longer than the slack lost its whole
+    ``Ccf`` over a few pixels (the 2D bench quadruped's hind thigh, 76 px: all of it
+    between 41 and 31 px drawn); docs/gesture.md.
 
     Args:
         dist: Drawn bone lengths, pixels, ``(Ka, Kb)``.
@@ -366,9 +372,9 @@ def exposed_weight(dist: np.ndarray, length: float, ra: np.ndarray, rb: np.ndarr
         Weights in ``[0, 1]``, ``(Ka, Kb)``.
     """
     radii = ra[:, None] + rb[None, :]
-    expected = np.maximum(dist, length) - radii - slack
-    room = expected > 0.0
-    share = (dist - radii) / np.where(room, expected, 1.0)
+    full = np.maximum(dist, length) - radii
+    room = full > slack
+    share = (dist - radii + slack) / np.where(room, full, 1.0)
     return np.where(room, np.clip(share, 0.0, 1.0), 1.0)
 
 
