@@ -318,6 +318,12 @@ class StickObjective:
     _comfort_ref: np.ndarray = field(init=False, repr=False)
     _comfort_scale: np.ndarray = field(init=False, repr=False)
     _rigid_mass: tuple = field(init=False, repr=False)
+    _mass_share: np.ndarray = field(init=False, repr=False)
+    _pair_reach: np.ndarray = field(init=False, repr=False)
+    _env_on: np.ndarray = field(init=False, repr=False)
+    _env_radii: np.ndarray = field(init=False, repr=False)
+    _comfort_jacobian: np.ndarray = field(init=False, repr=False)
+    _soles: tuple = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         """Cache drawn edges, the pixel scale, the support polygon and comfort constants."""
@@ -344,9 +350,26 @@ class StickObjective:
         # sqrt(w / m) / h: each group counts once, whatever its number of genes.
         object.__setattr__(self, "_comfort_scale",
                            np.sqrt(self.weights.comfort / np.repeat(m, m)) / half)
+        # Per-solve constants of the residuals: bone mass shares, the radii sums of the
+        # capsule pairs, the capsules checked against the environment and their radii,
+        # the comfort rows' (constant) Jacobian.
+        w = self.masses / self.masses.sum()
+        object.__setattr__(self, "_mass_share", w)
+        caps = self.capsules
+        object.__setattr__(self, "_pair_reach", caps.radii[caps.pairs[:, 0]] +
+                           caps.radii[caps.pairs[:, 1]])
+        on = np.flatnonzero(self.env_capsules)
+        object.__setattr__(self, "_env_on", on)
+        object.__setattr__(self, "_env_radii", caps.radii[on])
+        G = self.model.n_genes
+        # The soles' support points on the ground and extents (heel, toe), (f, 2) each.
+        object.__setattr__(self, "_soles", (
+            np.array([f.point for f in self.footprints]).reshape(-1, 3) @ ground,
+            np.array([[f.heel, f.toe] for f in self.footprints]).reshape(-1, 2)))
+        object.__setattr__(self, "_comfort_jacobian",
+                           np.eye(G)[N_ROOT_GENES:] * self._comfort_scale[:, None])
         # The centre of mass without posing the rigid bones (fingers): the chain bones'
         # masses and, per chain bone, what its rigid bones add.
-        w = self.masses / self.masses.sum()
         chain = np.zeros(len(w), bool)
         chain[self.model.chain_bones] = True
         object.__setattr__(self, "_rigid_mass",
@@ -385,7 +408,7 @@ class StickObjective:
         rounding.
         """
         if frames is None:
-            m = self.masses / self.masses.sum()
+            m = self._mass_share
             return np.einsum("n,pnd->pd", m, 0.5 * (heads + tails))
         chain, w, anchors, W, v = self._rigid_mass
         com = np.einsum("n,pnd->pd", w, 0.5 * (heads[:, chain] + tails[:, chain]))
@@ -431,8 +454,7 @@ class StickObjective:
             feet's unit directions (0 for a foot without one) and lengths; the soles'
             extents (heel, toe) along them, world units.
         """
-        base = np.array([f.point for f in self.footprints]) @ self._ground  # (f, 2)
-        ext = np.array([[f.heel, f.toe] for f in self.footprints])  # (f, 2)
+        base, ext = self._soles  # (f, 2) each
         n = np.linalg.norm(feet, axis=-1, keepdims=True)
         u = np.where(n > 1e-9, feet / np.maximum(n, 1e-9), 0.0)
         soles = base[None, :, None] + ext[None, :, :, None] * u[:, :, None]  # (P, f, 2, 2)
@@ -455,18 +477,45 @@ class StickObjective:
         Returns:
             ``(off (P, 2), d off / d c2 (P, 2, 2), d off / d feet (P, f, 2, 2) or None)``.
         """
+        off, closest = self._support_offset_closest(c2, feet)
+        return (off, *self._support_offset_derivatives(c2, off, closest))
+
+    def _support_offset_closest(self, c2: np.ndarray, feet: np.ndarray | None
+                                ) -> tuple[np.ndarray, tuple | None]:
+        """:meth:`support_offset` and where its closest point is (None without soles).
+
+        The first half of :meth:`_support_offset_jacobian`: a trial point of the
+        trust-region solve needs the offset, not its derivatives
+        (:meth:`_support_offset_derivatives`).
+        """
+        if not self.footprints or feet is None:
+            return polygon_offset(c2, self._poly), None
+        pts, u, n, ext = self._support_points(feet)
+        off, i, j, t, inside = hull_offset(c2, pts, closest=True)
+        return off, (pts, u, n, ext, i, j, t, inside)
+
+    def _support_offset_derivatives(self, c2: np.ndarray, off: np.ndarray,
+                                    closest: tuple | None
+                                    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """The derivatives of :meth:`_support_offset_jacobian` from its first half.
+
+        Args:
+            c2: Centres of mass on the ground plane, shape ``(P, 2)``.
+            off: Their offsets, shape ``(P, 2)``.
+            closest: :meth:`_support_offset_closest`'s second item.
+
+        Returns:
+            ``(d off / d c2 (P, 2, 2), d off / d feet (P, f, 2, 2) or None)``.
+        """
         P = len(c2)
         eye = np.eye(2)
-        if not self.footprints or feet is None:
-            off = polygon_offset(c2, self._poly)
+        if closest is None:
             h = 1e-7  # piecewise linear: differences are exact away from the corners
             o = polygon_offset(np.concatenate([c2 + [h, 0.0], c2 + [0.0, h]]), self._poly)
-            dc = np.stack([o[:P] - off, o[P:] - off], axis=2) / h
-            return off, dc, None
+            return np.stack([o[:P] - off, o[P:] - off], axis=2) / h, None
         nf = len(self.footprints)
-        pts, u, n, ext = self._support_points(feet)
+        pts, u, n, ext, i, j, t, inside = closest
         k0 = len(self._poly)
-        off, i, j, t, inside = hull_offset(c2, pts, closest=True)
         rows = np.arange(P)
         d = pts[rows, j] - pts[rows, i]
         m = np.maximum(np.einsum("pd,pd->p", d, d), 1e-18)
@@ -490,13 +539,13 @@ class StickObjective:
             if np.any(sole):
                 r, f, e = rows[sole], s_[sole] // 2, ext[s_[sole] // 2, s_[sole] % 2]
                 df[r, f] += e[:, None, None] * dend[sole] @ du[r, f]
-        return off, dq, df
+        return dq, df
 
     def _balance(self, heads, tails, grad, frames=None, joints=None):
         P = heads.shape[0]
         if len(self._poly) == 0:
             return np.zeros(P), None, None
-        m = self.masses / self.masses.sum()
+        m = self._mass_share
         com = self._centre_of_mass(heads, tails, frames)
         feet = self._feet(joints) if self.footprints and joints is not None else None
         if not grad or feet is None:
@@ -715,7 +764,7 @@ class StickObjective:
         out = [np.sqrt(w.projection) * (uh - self._dirs).reshape(P, -1),
                np.sqrt(w.projection * w.position) * off.reshape(P, -1)]
         if len(self._poly):
-            m = self.masses / self.masses.sum()
+            m = self._mass_share
             com = np.einsum("n,pnd->pd", m, 0.5 * (heads + tails))
             bal = self.support_offset(com @ self._ground,
                                       self._feet(joints) if self.footprints else None)
@@ -810,10 +859,11 @@ class StickObjective:
         rs = [sp * (uh - self._dirs).ravel(), spp * off.ravel()]
         sb = np.sqrt(w.balance) / self.height
         if len(self._poly):
-            m = self.masses / self.masses.sum()
+            m = self._mass_share
             com = m @ (0.5 * (heads + tails))
             feet = self._feet(joints[None]) if self.footprints else None
-            o, dc, df = self._support_offset_jacobian((com @ self._ground)[None], feet)
+            c2 = (com @ self._ground)[None]
+            o, closest = self._support_offset_closest(c2, feet)
             rs.append(sb * o[0])
         sa = np.sqrt(w.attachment) / self.height
         for pin in self.env_pins:
@@ -846,12 +896,10 @@ class StickObjective:
         if pairs:
             ca, cb = caps.pairs[:, 0], caps.pairs[:, 1]
             s_, t_, d = pair_closest(caps, start, end)
-            rr = caps.radii[ca] + caps.radii[cb]
-            pen_pairs = np.maximum(rr - d, 0.0)
+            pen_pairs = np.maximum(self._pair_reach - d, 0.0)
             rs.append(c * pen_pairs)
         if env:
-            cc = np.flatnonzero(self.env_capsules)
-            radii = caps.radii[cc]
+            cc, radii = self._env_on, self._env_radii
             sm = axis_samples(5)
             pts = start[cc, None] * (1 - sm)[:, None] + end[cc, None] * sm[:, None]
             d_env, gd = self.grid.sample(pts, limit=1.001 * radii.max())
@@ -864,6 +912,7 @@ class StickObjective:
             js = [sp * np.einsum("eij,ejg->eig", P, dq_[b] - dq_[a]).reshape(-1, G),
                   spp * dq_[present].reshape(-1, G) / self._px_scale]
             if len(self._poly):
+                dc, df = self._support_offset_derivatives(c2, o, closest)
                 dcom = np.einsum("n,ndg->dg", m, 0.5 * (Jh_ + Jt_))
                 jb = dc[0] @ self._ground.T @ dcom
                 for k, f in enumerate(self.footprints):  # the soles turn with the feet
@@ -874,7 +923,7 @@ class StickObjective:
             for pin in self.limb_pins:
                 js.append(sa * (Jj_[pin.joint] - pin.target(Jj_, axis=0)))
             if w.comfort > 0:
-                js.append(np.eye(G)[N_ROOT_GENES:] * self._comfort_scale[:, None])
+                js.append(self._comfort_jacobian)
             if w.foreshortening > 0:
                 js.append(np.sqrt(w.foreshortening) * jf)
             if collision:
