@@ -22,6 +22,12 @@ from .figure import CharacterFigure
 N_ROOT_GENES = 6
 
 
+def _position(bones: np.ndarray, bone: int) -> int:
+    """Position of ``bone`` in ``bones`` ``(k,)``, or -1."""
+    at = np.flatnonzero(bones == bone)
+    return int(at[0]) if at.size else -1
+
+
 def _coefficients(phi: np.ndarray, third: bool = True):
     """``theta^2``, ``sin(t)/t``, ``(1 - cos t)/t^2``, ``(t - sin t)/t^3`` (series near 0).
 
@@ -127,16 +133,13 @@ class PoseModel:
     _root_hcarry: np.ndarray = field(init=False, repr=False)
     _level_data: tuple = field(init=False, repr=False)
     _moved: np.ndarray = field(init=False, repr=False)
-    _base_local: np.ndarray = field(init=False, repr=False)
-    _base_offset: np.ndarray = field(init=False, repr=False)
     _tables: dict = field(init=False, repr=False, compare=False)
     _chain: np.ndarray = field(init=False, repr=False)
     _e_base: np.ndarray = field(init=False, repr=False)
     _e_moved: np.ndarray = field(init=False, repr=False)
     _root_moved: int = field(init=False, repr=False)
-    _moved_compact: np.ndarray = field(init=False, repr=False)
-    _root_compact: int = field(init=False, repr=False)
     _rigid: tuple = field(init=False, repr=False)
+    _root_right: np.ndarray = field(init=False, repr=False)
     _joints_on_chain: bool = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -190,8 +193,7 @@ class PoseModel:
         # The chain: the bones the genes turn, the bones that do not inherit their
         # parent's rotation, their ancestors and the bones nothing turns. The others
         # (fingers below a hand) are rigid: their local frames and offsets are always the
-        # base pose's, so they need no per-individual copies of them and are posed after
-        # the chain from constants (the same floating-point operations, bit-identical).
+        # base pose's, so they are posed after the chain from constants.
         inherit_all = np.asarray(sk.inherit_rotation, bool)
         turned = np.zeros(sk.n_bones, bool)
         turned[moved] = True
@@ -204,46 +206,85 @@ class PoseModel:
         for b in np.flatnonzero(chain & under).tolist():
             chain[sk.ancestors(b)] = True
         chain_idx = np.flatnonzero(chain)
-        compact = np.full(sk.n_bones, -1)
-        compact[chain_idx] = np.arange(chain_idx.size)
-        levels = []
-        for level in sk._levels:
-            level = level[chain[level]]
-            par = sk.parents[level]
-            root = par < 0
-            ri, ci, cp = level[root], level[~root], par[~root]
-            # Empty root sets and all-inheriting levels skip their numpy calls (a gene
-            # vector's forward pass is dominated by their count, not their size).
-            inherit = inherit_all[ci]
-            if not (ri.size or ci.size):
-                continue
-            levels.append((ri if ri.size else None, compact[ri], ci, compact[ci], cp,
-                           np.swapaxes(sk.rest_frames[cp], 1, 2),
-                           None if inherit.all() else inherit[:, None, None],
-                           sk.rest_heads[ci] - sk.rest_heads[cp]))
-        object.__setattr__(self, "_level_data", tuple(levels))
-        object.__setattr__(self, "_chain", chain_idx)
-        object.__setattr__(self, "_moved_compact", compact[moved])
-        object.__setattr__(self, "_root_compact", int(compact[fig.root_bone]))
-        # The rigid bones, level by level (parents first), with their constant local
-        # frames and offsets: the same operations as for a chain bone of the base pose.
-        rigid = []
-        for level in sk._levels:
-            ki = level[~chain[level]]
-            if ki.size:
-                kp = sk.parents[ki]
-                rigid.append((ki, kp, np.swapaxes(sk.rest_frames[kp], 1, 2), base_local[ki],
-                              (sk.rest_heads[ki] - sk.rest_heads[kp]) + base_offset[ki]))
-        object.__setattr__(self, "_rigid", tuple(rigid))
-        object.__setattr__(self, "_joints_on_chain", bool(np.all(chain[fig.joint_bones])))
-        object.__setattr__(self, "_base_local", base_local[chain_idx])
-        object.__setattr__(self, "_base_offset", base_offset[chain_idx])
         state = sk.forward(self.base)
         r = fig.root_bone
         object.__setattr__(self, "_root_carry", sk.parent_carry(r, state))
         p = sk.parents[r]
         hc = np.eye(3) if p < 0 else state.frames[p] @ sk.rest_frames[p].T
         object.__setattr__(self, "_root_hcarry", hc)
+        object.__setattr__(self, "_root_right", self._root_carry @ self.base.rotations[r])
+        object.__setattr__(self, "_chain", chain_idx)
+        object.__setattr__(self, "_joints_on_chain", bool(np.all(chain[fig.joint_bones])))
+        object.__setattr__(self, "_level_data", self._factored_levels(
+            chain, base_local, base_offset, e_bone))
+        # The rigid bones, level by level (parents first): a rigid bone's frame is its
+        # parent's times a constant, its head its parent's plus the parent's frame times a
+        # constant vector.
+        rigid = []
+        for level in sk._levels:
+            ki = level[~chain[level]]
+            if ki.size:
+                kp = sk.parents[ki]
+                rest_t = np.swapaxes(sk.rest_frames[kp], 1, 2)
+                rel = (sk.rest_heads[ki] - sk.rest_heads[kp]) + base_offset[ki]
+                rigid.append((ki, kp, rest_t @ base_local[ki],
+                              np.einsum("nij,nj->ni", rest_t, rel)))
+        object.__setattr__(self, "_rigid", tuple(rigid))
+
+    def _factored_levels(self, chain: np.ndarray, base_local: np.ndarray,
+                         base_offset: np.ndarray, e_bone: np.ndarray) -> tuple:
+        """Per tree depth, the constants of the chain bones' posed frames and heads.
+
+        A chain bone ``b`` of parent ``p`` (rest frames ``R``) has the local frame
+        ``L_b = R_b Q_b`` and is posed as ``F_b = F_p R_p^T L_b`` (``L_b`` alone when it
+        does not inherit its parent's rotation, or has no parent) and ``h_b = h_p + F_p
+        R_p^T (rel_b + o_b)``. ``Q_b`` is the base rotation, ``Q0_b E_b`` for a group bone
+        (``E_b = exp(B_b g / k)``) or ``C^T G C Q0_r`` for the root, so ``F_b = F_p K_b``
+        with the constant ``K_b = R_p^T R_b Q0_b``, ``R_p^T R_b Q0_b`` then times ``E_b``,
+        or ``R_p^T R_r C^T`` then times ``G C Q0_r``: two 3x3 products per individual
+        and turned bone instead of four (the same pose, to rounding).
+
+        Returns:
+            Per level ``(roots, children (k,), parents (k,), K (k, 3, 3), w (k, 3), the
+            children not inheriting (positions, or None), the group bones' positions (None
+            when all are) and entries, the root's position or -1)``; ``roots`` is None or,
+            for the level's parentless chain bones, ``(bones (r,), K (r, 3, 3), heads (r,
+            3), the group bones' positions and entries, the root's position or -1)``.
+        """
+        sk, fig = self.skeleton, self.figure
+        rest, n = sk.rest_frames, sk.n_bones
+        inherit = np.asarray(sk.inherit_rotation, bool)
+        r = fig.root_bone
+        entry = np.full(n, -1)
+        entry[e_bone] = np.arange(e_bone.size)  # a bone in two groups: the last
+        entry[r] = -1  # the root's own formula wins
+        C = self._root_carry
+        left = base_local.copy()  # the factor of L_b left of its per-individual part
+        left[e_bone] = rest[e_bone] @ self.base.rotations[e_bone]
+        left[r] = rest[r] @ C.T
+        levels = []
+        for level in sk._levels:
+            level = level[chain[level]]
+            if not level.size:
+                continue
+            par = sk.parents[level]
+            ri, ci, cp = level[par < 0], level[par >= 0], par[par >= 0]
+            rest_t = np.swapaxes(rest[cp], 1, 2)
+            K = rest_t @ left[ci]
+            out = ~inherit[ci]
+            K[out] = left[ci][out]
+            w = np.einsum("nij,nj->ni", rest_t,
+                          (sk.rest_heads[ci] - sk.rest_heads[cp]) + base_offset[ci])
+            roots = None
+            if ri.size:
+                rpos = np.flatnonzero(entry[ri] >= 0)
+                roots = (ri, left[ri], sk.rest_heads[ri] + base_offset[ri], rpos,
+                         entry[ri][rpos], _position(ri, r))
+            pos = np.flatnonzero(entry[ci] >= 0)
+            levels.append((roots, ci, cp, K, w, np.flatnonzero(out) if out.any() else None,
+                           None if pos.size == ci.size else pos, entry[ci][pos],
+                           _position(ci, r)))
+        return tuple(levels)
 
     @property
     def chain_bones(self) -> np.ndarray:
@@ -379,54 +420,68 @@ class PoseModel:
                  ) -> tuple[np.ndarray, ...]:
         """:meth:`forward` plus the group bones' rotation vectors ``(P, entries, 3)``.
 
-        The chain bones (``_chain``) are posed level by level from per-individual local
-        frames and offsets, then (``rigid``) the rigid ones (fingers below a hand) from
-        their base pose's constants. With ``rotations`` the local rotations
+        The chain bones (``_chain``) are posed level by level, each frame its parent's
+        times a constant and, for a turned bone, times its exponential (see
+        :meth:`_factored_levels`), then (``rigid``) the rigid ones (fingers below a hand),
+        each its parent's frame times a constant. With ``rotations`` the local rotations
         ``(P, n, 3, 3)`` follow as a fifth item.
         """
         sk = self.skeleton
         x = np.atleast_2d(genes)
         P, n = x.shape[0], sk.n_bones
-        moved = self._moved
         rigid = rigid or not self._joints_on_chain
-        if rotations:
-            Q, phi = self._turns(x, full=True)
-            Qm = Q[:, moved]
-        else:
-            Qm, phi = self._turns(x, full=False)
-        rest = sk.rest_frames
-        # Only the group bones and the root turn and only the root moves: the other
-        # chain bones' local frames and offsets are the base pose's (cached).
-        local = np.broadcast_to(self._base_local, (P,) + self._base_local.shape).copy()
-        local[:, self._moved_compact] = rest[moved] @ Qm
+        g = np.where(self._e_valid, x[:, self._e_genes], 0.0)
+        phi = np.einsum("eij,pej->pei", self._e_basis, g)
+        # One exponential call for the group bones and the root's turn (the last row).
+        E = fast_exp(np.concatenate([phi, x[:, None, 3:6]], axis=1))
+        turn = E[:, -1] @ self._root_right  # G C Q0_r
         r = self.figure.root_bone
-        offset = np.broadcast_to(self._base_offset, (P,) + self._base_offset.shape).copy()
+        rest = sk.rest_frames
         t_root = self.base.translations[r] + x[:, :3] @ self._root_hcarry @ rest[r]
-        offset[:, self._root_compact] = np.einsum("ij,pj->pi", rest[r], t_root)
+        off_r = np.einsum("ij,pj->pi", rest[r], t_root)
         frames = np.empty((P, n, 3, 3))
         heads = np.empty((P, n, 3))
         if not rigid and self._rigid:
+            # One contiguous fill: faster than scattering NaN into the rigid bones alone.
             frames.fill(np.nan)
             heads.fill(np.nan)
-        for ri, rc, ci, cc, cp, rest_t, inherit, rel0 in self._level_data:
-            if ri is not None:
-                frames[:, ri] = local[:, rc]
-                heads[:, ri] = sk.rest_heads[ri] + offset[:, rc]
+        for roots, ci, cp, K, w, out, pos, ent, at in self._level_data:
+            if roots is not None:
+                ri, K0, h0, rpos, rent, rat = roots
+                F = np.broadcast_to(K0, (P,) + K0.shape).copy()
+                if rpos.size:
+                    F[:, rpos] = K0[rpos] @ E[:, rent]
+                if rat >= 0:
+                    F[:, rat] = K0[rat] @ turn
+                frames[:, ri] = F
+                heads[:, ri] = h0
+                if rat >= 0:
+                    heads[:, r] = sk.rest_heads[r] + off_r
             if ci.size:
-                carry = frames[:, cp] @ rest_t
-                turned = carry @ local[:, cc]
-                frames[:, ci] = turned if inherit is None else np.where(
-                    inherit, turned, local[:, cc])
-                rel = rel0 + offset[:, cc]
-                heads[:, ci] = heads[:, cp] + np.einsum("pnij,pnj->pni", carry, rel)
-        for ki, kp, rest_t, local_k, rel in self._rigid if rigid else ():
-            carry = frames[:, kp] @ rest_t
-            frames[:, ki] = carry @ local_k
-            heads[:, ki] = heads[:, kp] + np.einsum(
-                "pnij,pnj->pni", carry, np.broadcast_to(rel, (P,) + rel.shape))
+                Fp = frames[:, cp]
+                T = Fp @ K
+                if out is not None:
+                    T[:, out] = K[out]
+                if pos is None:  # every child is a group bone
+                    T = T @ E[:, ent]
+                elif pos.size:
+                    T[:, pos] = T[:, pos] @ E[:, ent]
+                if at >= 0:
+                    T[:, at] = T[:, at] @ turn
+                frames[:, ci] = T
+                heads[:, ci] = heads[:, cp] + np.einsum("pnij,nj->pni", Fp, w)
+                if at >= 0:
+                    p = cp[at]
+                    rel = (sk.rest_heads[r] - sk.rest_heads[p]) + off_r
+                    heads[:, r] = heads[:, p] + np.einsum("pij,pj->pi", Fp[:, at],
+                                                          rel @ rest[p])
+        for ki, kp, K, w in self._rigid if rigid else ():
+            Fp = frames[:, kp]
+            frames[:, ki] = Fp @ K
+            heads[:, ki] = heads[:, kp] + np.einsum("pnij,nj->pni", Fp, w)
         tails = heads + frames[..., 1] * sk.lengths[:, None]
         if rotations:
-            return heads, tails, frames, phi, Q
+            return heads, tails, frames, phi, self._turns(x, full=True)[0]
         return heads, tails, frames, phi
 
     def jacobian(self, genes: np.ndarray) -> tuple[np.ndarray, ...]:
