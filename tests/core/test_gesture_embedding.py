@@ -62,8 +62,9 @@ def test_bent_arm_puts_the_elbow_at_the_arc_centre_inside_the_arm():
 
 
 def test_refinement_from_the_pose_is_kept_only_when_it_fits_better(monkeypatch):
-    """_refine_both keeps the walk from the pose only with a lower energy, no more
-    overlapping parts and no less coverage (refine and the contour assignment faked)."""
+    """_refine_both keeps the walk from the pose with no more overlapping parts and either
+    a lower energy at no less coverage, or ``coverage_gain`` more coverage at most
+    ``symmetric_tolerance`` more energy (refine and the contour assignment faked)."""
     n = 3
     reference = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]])
     conf = JointCandidates(reference + 5.0, np.full(n, 4.0), np.zeros(n, int),
@@ -95,6 +96,11 @@ def test_refinement_from_the_pose_is_kept_only_when_it_fits_better(monkeypatch):
     assert not run((discrete, (5.0, 1, 0.80)))      # no lower energy
     assert not run((discrete, (4.0, 1, 0.79)))      # less coverage (a limb left behind)
     assert not run((discrete, (4.0, 2, 0.95)))      # more overlapping parts
+    assert run((discrete, (5.4, 1, 0.83)))          # 3% more coverage for 0.4 more energy
+    assert run((discrete, (5.4, 0, 0.83)))          # the same with fewer overlaps
+    assert not run((discrete, (5.4, 1, 0.81)))      # 1% more coverage: not enough
+    assert not run((discrete, (5.6, 1, 0.90)))      # coverage bought with 0.6 more energy
+    assert not run((discrete, (5.4, 2, 0.90)))      # more overlapping parts
     calls.clear()
     out, info = embedding._refine_both(None, conf, reference,
                                        replace(GestureParams(), bind_start=False))
