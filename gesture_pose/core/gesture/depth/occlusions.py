@@ -243,7 +243,8 @@ def attribute(junctions: list[Junction], embedding: Embedding2D,
 
 def detect_junctions(embedding: Embedding2D, tolerance: float = 0.5,
                      interior: float = 1.0, min_angle: float = np.radians(10.0),
-                     reach: float = 0.5) -> list[Junction]:
+                     reach: float = 0.5, found: list[Junction] | None = None
+                     ) -> list[Junction]:
     """T-junctions of the drawing's contours with the bones on either side.
 
     Args:
@@ -252,13 +253,16 @@ def detect_junctions(embedding: Embedding2D, tolerance: float = 0.5,
         interior: See :func:`find_junctions` (resampling steps).
         min_angle: See :func:`find_junctions` (radians).
         reach: See :func:`sample_bones`.
+        found: The junctions :func:`find_junctions` finds on ``embedding.contours`` with
+            these parameters, when the caller has them already.
 
     Returns:
         Junctions whose stem and top bones are known and differ.
     """
-    eps = embedding.epsilon if embedding.epsilon > 0 else 2.0
-    found = find_junctions(embedding.contours, eps, embedding.bridges, tolerance, interior,
-                           min_angle)
+    if found is None:
+        eps = embedding.epsilon if embedding.epsilon > 0 else 2.0
+        found = find_junctions(embedding.contours, eps, embedding.bridges, tolerance,
+                               interior, min_angle)
     if not found:
         return []
     done = attribute(found, embedding, sample_bones(embedding, reach))

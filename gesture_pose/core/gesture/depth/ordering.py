@@ -144,7 +144,10 @@ def ordering_constraints(embedding: Embedding2D, scale: float, names: tuple[str,
     seen = {(o.back_bone, o.front_bone) for o in embedding.occlusions}
     if not embedding.contours:
         return out
-    found = occlusions.detect_junctions(embedding, tolerance, interior)
+    eps = embedding.epsilon if embedding.epsilon > 0 else 2.0
+    raw = occlusions.find_junctions(embedding.contours, eps, embedding.bridges, tolerance,
+                                    interior)
+    found = occlusions.detect_junctions(embedding, tolerance, interior, found=raw)
     occ, tees = occlusions.junction_occlusions(embedding, found, min_parts, overlap)
     for o in occ:
         if (o.back_bone, o.front_bone) not in seen and (o.front_bone, o.back_bone) not in seen:
@@ -158,11 +161,8 @@ def ordering_constraints(embedding: Embedding2D, scale: float, names: tuple[str,
                  else f"t_junction {stem} behind {top}")
         out.append(OrderingConstraint("t_junction", label, np.array([far]), np.ones(1),
                                       np.array([j]), np.ones(1), 0.0, soft))
-    eps = embedding.epsilon if embedding.epsilon > 0 else 2.0
-    raw = (occlusions.find_junctions(embedding.contours, eps, embedding.bridges, tolerance,
-                                     interior) if root_junctions else [])
     turned = set()
-    for rj in occlusions.root_junctions(embedding, raw):
+    for rj in occlusions.root_junctions(embedding, raw) if root_junctions else ():
         b = rj.bone
         if b in turned:
             continue  # the same order, read on the outline of another ancestor
