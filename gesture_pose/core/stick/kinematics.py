@@ -132,12 +132,9 @@ class PoseModel:
     _root_carry: np.ndarray = field(init=False, repr=False)
     _root_hcarry: np.ndarray = field(init=False, repr=False)
     _level_data: tuple = field(init=False, repr=False)
-    _moved: np.ndarray = field(init=False, repr=False)
     _tables: dict = field(init=False, repr=False, compare=False)
     _chain: np.ndarray = field(init=False, repr=False)
     _e_base: np.ndarray = field(init=False, repr=False)
-    _e_moved: np.ndarray = field(init=False, repr=False)
-    _root_moved: int = field(init=False, repr=False)
     _rigid: tuple = field(init=False, repr=False)
     _root_right: np.ndarray = field(init=False, repr=False)
     _joints_on_chain: bool = field(init=False, repr=False)
@@ -181,12 +178,7 @@ class PoseModel:
             desc[i, sk.descendants(i)] = True
         object.__setattr__(self, "_desc", desc)
         moved = np.unique(np.concatenate([e_bone, [fig.root_bone]]))
-        object.__setattr__(self, "_moved", moved)
-        where = np.full(sk.n_bones, -1)
-        where[moved] = np.arange(moved.size)
         object.__setattr__(self, "_e_base", self.base.rotations[e_bone])
-        object.__setattr__(self, "_e_moved", where[e_bone])
-        object.__setattr__(self, "_root_moved", int(where[fig.root_bone]))
         object.__setattr__(self, "_tables", {})
         base_local = sk.rest_frames @ self.base.rotations
         base_offset = np.einsum("nij,nj->ni", sk.rest_frames, self.base.translations)
@@ -360,34 +352,34 @@ class PoseModel:
             ``(Q, phi)``: local rotations ``(P, n, 3, 3)`` and per group bone the rotation
             vectors ``phi = B g / k`` in group order, ``(P, n_entries, 3)``.
         """
-        return self._turns(genes, full=True)
+        phi, E = self._exponentials(np.atleast_2d(genes))
+        return self._rotations(E), phi
 
-    def _turns(self, genes: np.ndarray, full: bool) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`local_rotations` of every bone, or (``full`` False) of the moved ones.
+    def _exponentials(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The group bones' rotation vectors and the turns of the group bones and the root.
+
+        Args:
+            x: Gene vectors, shape ``(P, G)``.
 
         Returns:
-            ``(Q, phi)``; ``Q`` is ``(P, n, 3, 3)`` or, not ``full``, ``(P, m, 3, 3)`` for
-            the bones the genes turn (``_moved``, the same values).
+            ``(phi (P, entries, 3), E (P, entries + 1, 3, 3))``: ``E`` holds ``exp(phi)``
+            per group bone entry, then the root's turn ``G`` (the last row).
         """
-        x = np.atleast_2d(genes)
-        P = x.shape[0]
-        base = self.base.rotations
-        if full:
-            e_bone, r = self._e_bone, self.figure.root_bone
-            Q = np.broadcast_to(base, (P,) + base.shape).copy()
-        else:
-            # Every moved bone is a group bone or the root: all are set below.
-            e_bone, r = self._e_moved, self._root_moved
-            Q = np.empty((P, self._moved.size, 3, 3))
         g = np.where(self._e_valid, x[:, self._e_genes], 0.0)
         phi = np.einsum("eij,pej->pei", self._e_basis, g)
         # One exponential call for the group bones and the root's turn (the last row).
-        E = fast_exp(np.concatenate([phi, x[:, None, 3:6]], axis=1))
-        Q[:, e_bone] = self._e_base @ E[:, :-1]
+        return phi, fast_exp(np.concatenate([phi, x[:, None, 3:6]], axis=1))
+
+    def _rotations(self, E: np.ndarray) -> np.ndarray:
+        """Local rotations of every bone ``(P, n, 3, 3)`` from :meth:`_exponentials`' ``E``."""
+        base = self.base.rotations
+        Q = np.broadcast_to(base, (E.shape[0],) + base.shape).copy()
+        Q[:, self._e_bone] = self._e_base @ E[:, :-1]
         C = self._root_carry
         G = E[:, -1]
-        Q[:, r] = C.T @ G @ C @ base[self.figure.root_bone]
-        return Q, phi
+        r = self.figure.root_bone
+        Q[:, r] = C.T @ G @ C @ base[r]
+        return Q
 
     def forward(self, genes: np.ndarray, rigid: bool = True
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -430,10 +422,7 @@ class PoseModel:
         x = np.atleast_2d(genes)
         P, n = x.shape[0], sk.n_bones
         rigid = rigid or not self._joints_on_chain
-        g = np.where(self._e_valid, x[:, self._e_genes], 0.0)
-        phi = np.einsum("eij,pej->pei", self._e_basis, g)
-        # One exponential call for the group bones and the root's turn (the last row).
-        E = fast_exp(np.concatenate([phi, x[:, None, 3:6]], axis=1))
+        phi, E = self._exponentials(x)
         turn = E[:, -1] @ self._root_right  # G C Q0_r
         r = self.figure.root_bone
         rest = sk.rest_frames
@@ -481,7 +470,7 @@ class PoseModel:
             heads[:, ki] = heads[:, kp] + np.einsum("pnij,nj->pni", Fp, w)
         tails = heads + frames[..., 1] * sk.lengths[:, None]
         if rotations:
-            return heads, tails, frames, phi, self._turns(x, full=True)[0]
+            return heads, tails, frames, phi, self._rotations(E)
         return heads, tails, frames, phi
 
     def jacobian(self, genes: np.ndarray) -> tuple[np.ndarray, ...]:
