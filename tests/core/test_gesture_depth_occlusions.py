@@ -24,13 +24,12 @@ from tests.core.fixtures import frame_along, front_camera, tree_skeleton
 R_TORSO, R_ARM = 0.15, 0.06
 
 
-def _crossing_skeleton() -> Skeleton:
-    """A vertical torso and an arm (upper arm down the right side, forearm straight across
-    the torso at height 0.5): the forearm is two parent-child steps from the torso."""
-    heads = np.array([[0.0, 0.0, 0.0], [0.35, 0.0, 0.9], [0.35, 0.0, 0.5]])
-    tails = np.array([[0.0, 0.0, 1.0], [0.35, 0.0, 0.5], [-0.35, 0.0, 0.5]])
+def _chain_of_three(names: tuple[str, str, str], heads: np.ndarray, tails: np.ndarray
+                    ) -> Skeleton:
+    """Three bones, each the child of the one before; the second hangs unconnected from
+    the first, the third is connected to the second. Heads and tails ``(3, 3)``."""
     return Skeleton(
-        names=("torso", "upper_arm.L", "forearm.L"),
+        names=names,
         parents=np.array([-1, 0, 1]),
         rest_heads=heads,
         rest_tails=tails,
@@ -39,6 +38,14 @@ def _crossing_skeleton() -> Skeleton:
         connected=np.array([False, False, True]),
         deform=np.ones(3, bool),
     )
+
+
+def _crossing_skeleton() -> Skeleton:
+    """A vertical torso and an arm (upper arm down the right side, forearm straight across
+    the torso at height 0.5): the forearm is two parent-child steps from the torso."""
+    heads = np.array([[0.0, 0.0, 0.0], [0.35, 0.0, 0.9], [0.35, 0.0, 0.5]])
+    tails = np.array([[0.0, 0.0, 1.0], [0.35, 0.0, 0.5], [-0.35, 0.0, 0.5]])
+    return _chain_of_three(("torso", "upper_arm.L", "forearm.L"), heads, tails)
 
 
 def _line(cam, a, b, step: float = 4.0) -> np.ndarray:
@@ -339,16 +346,7 @@ def _shoulder_skeleton() -> Skeleton:
     shoulder, two parent-child steps."""
     heads = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.85], [R_TORSO, 0.0, 0.85]])
     tails = np.array([[0.0, 0.0, 1.0], [R_TORSO, 0.0, 0.85], [R_TORSO + 0.3, 0.0, 0.85]])
-    return Skeleton(
-        names=("torso", "shoulder.L", "upper_arm.L"),
-        parents=np.array([-1, 0, 1]),
-        rest_heads=heads,
-        rest_tails=tails,
-        rest_frames=np.stack([frame_along(t - h) for h, t in zip(heads, tails, strict=True)]),
-        inherit_rotation=np.ones(3, bool),
-        connected=np.array([False, False, True]),
-        deform=np.ones(3, bool),
-    )
+    return _chain_of_three(("torso", "shoulder.L", "upper_arm.L"), heads, tails)
 
 
 def _shoulder_drawing(arm_behind: bool, swing: float = np.radians(50.0)):
