@@ -182,8 +182,9 @@ def test_foreshortening_scales_the_short_side_with_the_bone():
     ``foreshortening`` the short side's sigma becomes that share of the bone's length
     beyond ``foreshortening_from`` sigmas of shortfall, so a long bone drawn at a third of
     its length no longer costs 1, while a small shortfall costs what the paper's sigma
-    says (the long side keeps the strict sigma / 3). Off by default (the paper's Eq. 2)."""
-    assert CostParams().foreshortening == 0.0
+    says (the long side keeps the strict sigma / 3). On by default: half the bone's length
+    beyond one sigma (``foreshortening`` 0; the paper's Eq. 2)."""
+    assert (CostParams().foreshortening, CostParams().foreshortening_from) == (0.5, 1.0)
     drawn = np.array([95.0, 31.0, 100.0, 105.0])
     paper = length_cost(drawn, 100.0, 10.0)
     scaled = length_cost(drawn, 100.0, 10.0, short_sigma=50.0, knee=0.5)
@@ -226,8 +227,8 @@ def test_conformity_counts_only_the_side_a_bone_shows():
     beyond ``exposed_from`` sigmas of slack. A bone drawn at its length pays the whole
     ``Ccf``; one foreshortened into its joints' circles (thighs pointing at the viewer)
     pays only the slack's share; a bone whose stretch is within the slack (a hand) always
-    pays all of it. Off by default (the paper's ``Ccf``)."""
-    assert not CostParams().exposed_conformity
+    pays all of it. On by default (False: the paper's ``Ccf``)."""
+    assert CostParams().exposed_conformity
     ra, rb = np.array([20.0]), np.array([15.0])
     # 150 px thigh: 150 - 35 = 115 px of stretch, 10 px of slack.
     drawn = np.array([150.0, 200.0, 140.0, 87.5, 50.0, 30.0, 20.0])

@@ -78,8 +78,8 @@ class CostParams:
             bone). A bone turned out of the view plane by ``theta`` is drawn at
             ``cos(theta)`` of its length, so how much shorter it can look grows with the
             bone: thighs pointing at the viewer, drawn at 31% of their length, pay the
-            paper's ``Cl`` of 1.00 (0.76 at 0.5 from half a sigma). Off by default: measured
-            mixed (docs/gesture.md).
+            paper's ``Cl`` of 1.00 (0.76 at 0.5 from half a sigma). On by default (0.5
+            from 1 sigma, with ``exposed_conformity``; docs/gesture.md).
         foreshortening_from: Shortfall, in the paper's sigmas, up to which the paper's sigma
             holds before the share above takes over: a bone drawn at full length keeps
             the paper's hold on its joints (with the share alone from the start, a bent
@@ -87,11 +87,11 @@ class CostParams:
         exposed_conformity: ``Ccf`` is weighted by the share of its exposed stretch (between
             the two joint circles) a bone still shows (ours, :func:`exposed_weight`): a bone
             foreshortened into its joints' circles has no side to conform; False gives
-            the paper's ``Ccf`` for every bone. Off by default: with ``foreshortening``
+            the paper's ``Ccf`` for every bone. On by default: with ``foreshortening``
             0.5 from 1 sigma and ``GestureParams.refined_resolves`` it fits the test
-            view's crouch (every joint within 4%) and improves the means, but the 2D
-            bench quadruped's rest drawing folds its hidden far hind leg (docs/gesture.md);
-            alone it leaves the crouch as it is.
+            view's crouch (every joint within 4%) and improves the humanoid means; the 2D
+            bench quadruped's means are a little worse (docs/gesture.md); alone it leaves
+            the crouch as it is.
         exposed_from: Exposed stretch, in the paper's sigmas, a bone may lack before its
             ``Ccf`` is discounted; bones whose expected exposed stretch is shorter never
             are.
@@ -114,9 +114,9 @@ class CostParams:
     transverse_crossings: bool = True
     crossing_room: bool = True
     stacked_counterparts: float = 1.5
-    foreshortening: float = 0.0
-    foreshortening_from: float = 0.0
-    exposed_conformity: bool = False
+    foreshortening: float = 0.5
+    foreshortening_from: float = 1.0
+    exposed_conformity: bool = True
     exposed_from: float = 1.5
 
 

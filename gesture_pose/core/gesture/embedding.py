@@ -96,7 +96,8 @@ class GestureParams:
             occlusion candidates).
         refined_resolves: Sweeps of the limb re-solves again after the refinement, each
             kept re-solve refined once more (ours, see :func:`_resolve_refined`); 0 skips
-            them.
+            them. One by default, with the foreshortened-bone costs
+            (``CostParams.foreshortening``, ``CostParams.exposed_conformity``).
     """
 
     preprocess: PreprocessParams = field(default_factory=PreprocessParams)
@@ -131,7 +132,7 @@ class GestureParams:
     limb_resolves: int = 1
     limb_candidates: int = 32
     limb_grid: float = 2.5
-    refined_resolves: int = 0
+    refined_resolves: int = 1
 
 
 def posed_joints(solving: SolvingSkeleton, skeleton: Skeleton, pose: Pose) -> np.ndarray:
