@@ -28,6 +28,7 @@ from ..camera import Camera
 from ..exceptions import InputError, SolverError
 from ..rotations import exp_map, log_map, normalize, rotation_between
 from ..skeleton import Pose, Skeleton
+from .batch import refine_batch
 from .capsules import Capsules, bone_masses, capsules_from_mesh
 from .environment import UP_ANGLE, Environment, Seat, distance_grid, find_seat
 from .figure import CharacterFigure, character_figure, spine_joint
@@ -47,7 +48,7 @@ from .pins import (
     standing_joints,
 )
 from .ranking import RankWeights, plausibility
-from .refine import RefineResult, refine, refine_least_squares
+from .refine import RefineResult, refine
 from .threads import single_thread_blas
 
 #: A candidate whose energy after the short refinement exceeds ``HOPELESS_RATIO`` times
@@ -490,8 +491,7 @@ def _flip_descent(objective: StickObjective, candidates: list[RefineResult],
         new = flips[gap.max(-1).min(-1) > apart]
         if not len(new):
             break
-        moved = [refine_least_squares(objective, f, bounds, max_iterations=FLIP_EVALUATIONS)
-                 for f in new]
+        moved = refine_batch(objective, new, bounds, max_evaluations=FLIP_EVALUATIONS)
         s_moved, _ = plausibility(objective, np.array([r.x for r in moved]), rank)
         better = np.flatnonzero(s_moved < (1.0 - FLIP_MARGIN) * score[top])
         if not len(better):
@@ -545,20 +545,28 @@ def _pivot_on_pins(objective: StickObjective, x: np.ndarray, flips: np.ndarray,
     return out
 
 
-def _refine_short(objective: StickObjective, x: np.ndarray, bounds: np.ndarray
-                  ) -> RefineResult:
-    """A few Gauss-Newton steps: enough to settle a candidate in its basin."""
-    return refine_least_squares(objective, x, bounds, max_iterations=SHORT_EVALUATIONS)
+def _refine_short(objective: StickObjective, X: np.ndarray, bounds: np.ndarray
+                  ) -> list[RefineResult]:
+    """A few Gauss-Newton steps of each candidate ``(K, G)``, together.
+
+    Enough to settle each in its basin (:func:`.batch.refine_batch`).
+    """
+    return refine_batch(objective, X, bounds, max_evaluations=SHORT_EVALUATIONS)
 
 
-def _refine_long(objective: StickObjective, x: np.ndarray, bounds: np.ndarray,
-                 inp: StickInput) -> RefineResult:
-    """L-BFGS-B, then Gauss-Newton polishing of the sum of squares (the lower one)."""
-    r = refine(objective, x, bounds, max_iterations=inp.refine_iterations)
-    if inp.polish_evaluations <= 0:
-        return r
-    p = refine_least_squares(objective, r.x, bounds, max_iterations=inp.polish_evaluations)
-    return p if p.energy < r.energy else r
+def _refine_long(objective: StickObjective, X: np.ndarray, bounds: np.ndarray,
+                 inp: StickInput) -> list[RefineResult]:
+    """L-BFGS-B of each pose ``(K, G)``, then Gauss-Newton polishing; the lower of the two.
+
+    The polish of the sum of squares refines the poses together
+    (:func:`.batch.refine_batch`).
+    """
+    lb = [refine(objective, x, bounds, max_iterations=inp.refine_iterations) for x in X]
+    if inp.polish_evaluations <= 0 or not lb:
+        return lb
+    polished = refine_batch(objective, np.array([r.x for r in lb]), bounds,
+                            max_evaluations=inp.polish_evaluations)
+    return [p if p.energy < r.energy else r for r, p in zip(lb, polished, strict=True)]
 
 
 def solve_stick(inp: StickInput) -> StickResult:
@@ -710,7 +718,7 @@ def _solve(inp: StickInput) -> StickResult:
     heads, tails, _ = model.forward(ga.population[:256], rigid=False)
     joints = figure.joint_positions(heads, tails)
     picks = _distinct(joints, np.arange(len(joints)), GA_SEEDS, 0.08 * height, np.mean)
-    first = [_refine_short(objective, ga.population[i], bounds) for i in picks]
+    first = _refine_short(objective, ga.population[picks], bounds)
     # Every depth interpretation (near or far end of each limb bone) of the best ones,
     # ranked by plausibility (:mod:`.ranking`) with the refined ones.
     tops = np.argsort([r.energy for r in first], kind="stable")[:FLIPPED_SEEDS]
@@ -736,8 +744,9 @@ def _solve(inp: StickInput) -> StickResult:
     picks = _distinct(joints, np.argsort(score, kind="stable"),
                       inp.n_suggestions + EXTRA_CANDIDATES, DISTINCT * height)
     # The refined seeds (the pool's first rows) are not refined again.
-    second = [first[screened[i]] if screened[i] < len(first) else
-              _refine_short(objective, pool[i], bounds) for i in picks]
+    again = [i for i in picks if screened[i] >= len(first)]
+    short = dict(zip(again, _refine_short(objective, pool[again], bounds), strict=True))
+    second = [first[screened[i]] if screened[i] < len(first) else short[i] for i in picks]
     xs = np.array([r.x for r in second])
     score, _ = plausibility(objective, xs, rank)
     # A local move the genetic search lacks: the most plausible candidate with one limb
@@ -759,8 +768,11 @@ def _solve(inp: StickInput) -> StickResult:
     # candidate far above the best (a limb through the body or the seat) stays an
     # alternative as it is.
     s_best = min(score[i] for i in best)
-    refined = [second[i] if score[i] > HOPELESS_RATIO * s_best + HOPELESS_MARGIN else
-               _refine_long(objective, second[i].x, bounds, inp) for i in best]
+    hopeless = [score[i] > HOPELESS_RATIO * s_best + HOPELESS_MARGIN for i in best]
+    longs = iter(_refine_long(objective, np.array([second[i].x for i, h in
+                                                   zip(best, hopeless, strict=True) if not h]
+                                                  ).reshape(-1, bounds.shape[0]), bounds, inp))
+    refined = [second[i] if h else next(longs) for i, h in zip(best, hopeless, strict=True)]
     timings["refine"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
