@@ -5,8 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gesture_pose.core.stick.batch import evaluate_batch, refine_batch
-from gesture_pose.core.stick.refine import refine_least_squares
+from gesture_pose.core.stick.batch import (
+    evaluate_batch,
+    refine_batch,
+    refine_lbfgsb_batch,
+    values_and_grads,
+)
+from gesture_pose.core.stick.refine import refine, refine_least_squares
 from tests.core.test_stick_objective import footprint_problem, problem
 
 
@@ -70,3 +75,35 @@ def test_batch_refinement_lowers_the_energy_inside_the_bounds():
     alone = refine_batch(obj, X0[3:4], bounds, max_evaluations=10)[0]
     assert np.allclose(alone.x, out[3].x, atol=1e-10)
     assert refine_batch(obj, X0[:0], bounds) == []
+
+
+def test_batch_energies_and_gradients_are_the_single_pose_ones():
+    rng = np.random.default_rng(6)
+    obj, truth = footprint_problem(rng)
+    X = truth + rng.normal(scale=0.4, size=(4, truth.size))
+    X[:, 2] -= 0.3
+    for collision in (True, False):
+        e, g = values_and_grads(obj, X, collision)
+        for x, ek, gk in zip(X, e, g, strict=True):
+            e1, g1 = obj.value_and_grad(x, collision)
+            assert np.isclose(ek, e1, rtol=1e-12)
+            assert np.allclose(gk, g1, rtol=1e-10, atol=1e-10 * np.abs(g1).max())
+
+
+def test_lockstep_lbfgsb_is_scipys():
+    # Driving one L-BFGS-B instance per pose, their points evaluated together, gives
+    # scipy's iterates (to rounding) within the same iteration and evaluation limits.
+    rng = np.random.default_rng(7)
+    obj, truth = problem(rng, with_grid=False)
+    bounds = obj.model.bounds(np.zeros(3), 0.5)
+    X0 = np.clip(truth + rng.normal(scale=0.1, size=(3, truth.size)), *bounds.T)
+    X0[2, 8] = bounds[8, 0]
+    out = refine_lbfgsb_batch(obj, X0, bounds, max_iterations=5)
+    for x0, b in zip(X0, out, strict=True):
+        s = refine(obj, x0, bounds, max_iterations=5)
+        assert (b.iterations, b.evaluations) == (s.iterations, s.evaluations)
+        assert np.allclose(b.x, s.x, atol=1e-7)
+        assert np.isclose(b.energy, s.energy, rtol=1e-9)
+        assert np.all((b.x >= bounds[:, 0]) & (b.x <= bounds[:, 1]))
+        assert b.energy < obj.evaluate(x0[None])[0][0]
+    assert refine_lbfgsb_batch(obj, X0[:0], bounds) == []

@@ -23,8 +23,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .capsules import axis_samples, pair_closest
+from .kinematics import N_ROOT_GENES
 from .objective import StickObjective, project_jacobian
-from .refine import PENETRATION_ROWS, RefineResult, refine_least_squares
+from .refine import PENETRATION_ROWS, RefineResult, refine, refine_least_squares
 
 
 def batch_jacobians(objective: StickObjective, X: np.ndarray, state: tuple[np.ndarray, ...]
@@ -284,8 +285,8 @@ def _minimize_1d(a: np.ndarray, b: np.ndarray, c: np.ndarray, lo: np.ndarray,
     return t[rows, i], y[rows, i]
 
 
-def _trust_region_step(B: np.ndarray, g: np.ndarray, delta: np.ndarray, alpha: np.ndarray,
-                       rows: int, rtol: float = 0.01, max_iter: int = 10
+def _trust_region_step(mu: np.ndarray, V: np.ndarray, g: np.ndarray, delta: np.ndarray,
+                       alpha: np.ndarray, rows: int, rtol: float = 0.01, max_iter: int = 10
                        ) -> tuple[np.ndarray, np.ndarray]:
     """Minimizer of ``p^T B p / 2 + g^T p`` with ``|p| <= delta`` per pose.
 
@@ -296,7 +297,8 @@ def _trust_region_step(B: np.ndarray, g: np.ndarray, delta: np.ndarray, alpha: n
     ``J`` has full rank and the step is inside.
 
     Args:
-        B: Model Hessians, shape ``(k, G, G)``.
+        mu: Eigenvalues of the model Hessians ``B``, ascending, shape ``(k, G)``.
+        V: Their eigenvectors (columns), shape ``(k, G, G)``.
         g: Gradients ``J^T r``, shape ``(k, G)``.
         delta: Radii, shape ``(k,)``.
         alpha: Previous damping per pose, NaN for none, shape ``(k,)``.
@@ -307,7 +309,6 @@ def _trust_region_step(B: np.ndarray, g: np.ndarray, delta: np.ndarray, alpha: n
     Returns:
         ``(steps (k, G), alpha (k,))``.
     """
-    mu, V = np.linalg.eigh(B)
     s = np.sqrt(np.maximum(mu, 0.0))  # ascending
     s2 = s**2
     suf = np.einsum("kgi,kg->ki", V, g)
@@ -529,6 +530,10 @@ def refine_batch(objective: StickObjective, X0: np.ndarray, bounds: np.ndarray,
     status = np.array(["evaluation budget"] * K, dtype=object)
     alpha = np.full(K, np.nan)
     ev_rows = ev.rows
+    # The model's eigen-decomposition per pose, kept while its point is: a rejected step
+    # is retried with a smaller radius on the same model (scipy's inner loop).
+    mu, V = np.zeros((K, G)), np.zeros((K, G, G))
+    known = np.zeros(K, bool)
     while True:
         v, dv = _coleman_li(x, g, lo, hi)
         g_norm = np.max(np.abs(g * v), 1)
@@ -544,7 +549,12 @@ def refine_batch(objective: StickObjective, X0: np.ndarray, bounds: np.ndarray,
         g_h = d * ga
         B = d[:, :, None] * Ha * d[:, None, :] + diag_h[:, :, None] * np.eye(G)
         theta = np.maximum(0.995, 1 - g_norm[idx])
-        p_h, alpha[idx] = _trust_region_step(B, g_h, delta[idx], alpha[idx], ev_rows)
+        new = ~known[idx]
+        if new.any():
+            mu[idx[new]], V[idx[new]] = np.linalg.eigh(B[new])
+            known[idx[new]] = True
+        p_h, alpha[idx] = _trust_region_step(mu[idx], V[idx], g_h, delta[idx], alpha[idx],
+                                             ev_rows)
         step, step_h, pred = _select_step(xa, B, g_h, d * p_h, p_h, d, delta[idx], lo, hi,
                                           theta)
         xt = _strictly_feasible(xa + step, lo, hi)
@@ -575,6 +585,7 @@ def refine_batch(objective: StickObjective, X0: np.ndarray, bounds: np.ndarray,
             ka = idx[acc]
             x[ka] = xt[acc]
             cost[ka] = c_new[acc]
+            known[ka] = False
             need = ~stop[acc] & (n_eval[ka] < max_evaluations)
             if np.any(need):
                 normal(et, acc[need], ka[need])
@@ -583,3 +594,136 @@ def refine_batch(objective: StickObjective, X0: np.ndarray, bounds: np.ndarray,
     seconds = (time.perf_counter() - t0) / K
     return [RefineResult(x[k].copy(), float(2.0 * cost[k]), int(n_jac[k]), int(n_eval[k]),
                          seconds, str(status[k])) for k in range(K)]
+
+
+# -- L-BFGS-B, several poses in lockstep -----------------------------------------------------
+
+def values_and_grads(objective: StickObjective, X: np.ndarray, collision: bool = True
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`.StickObjective.value_and_grad` of ``K`` gene vectors at once.
+
+    Args:
+        objective: The energy (foreshortening not weighted).
+        X: Gene vectors, shape ``(K, G)``.
+        collision: Include Eq. 11.
+
+    Returns:
+        ``(energies (K,), gradients (K, G))``.
+    """
+    X = np.asarray(X, float)
+    state = objective.model._forward(X)
+    heads, tails = state[0], state[1]
+    Jh, Jt = batch_jacobians(objective, X, state)
+    total, _, gh, gt = objective.energies(heads, tails, collision, grad=True)
+    g = np.einsum("knd,kndg->kg", gh, Jh) + np.einsum("knd,kndg->kg", gt, Jt)
+    if objective.weights.comfort > 0:
+        r = objective.comfort_residuals(X)
+        total = total + np.sum(r * r, 1)
+        g[:, N_ROOT_GENES:] += 2.0 * r * objective._comfort_scale
+    return total, g
+
+
+#: The reverse-communication routine of scipy's L-BFGS-B this module drives (scipy 1.15+).
+SETULB = "setulb(m,x,l,u,nbd,f,g,factr,pgtol,wa,iwa,task,lsave,isave,dsave,maxls,ln_task)"
+
+
+def _setulb() -> Callable | None:
+    """Scipy's ``_lbfgsb.setulb`` when it is the routine :data:`SETULB` describes."""
+    try:
+        from scipy.optimize import _lbfgsb
+    except ImportError:  # pragma: no cover - another scipy
+        return None
+    routine = getattr(_lbfgsb, "setulb", None)
+    doc = (getattr(routine, "__doc__", "") or "").strip()
+    return routine if doc.startswith(SETULB) else None
+
+
+def refine_lbfgsb_batch(objective: StickObjective, X0: np.ndarray, bounds: np.ndarray,
+                        max_iterations: int = 80, collision: bool = True
+                        ) -> list[RefineResult]:
+    """:func:`.refine.refine` (bounded L-BFGS-B) of ``K`` poses in lockstep.
+
+    scipy's L-BFGS-B (``minimize(method="L-BFGS-B")`` with the options of
+    :func:`.refine.refine`) asks for the energy and its gradient by reverse
+    communication (``_lbfgsb.setulb``): here one instance per pose is driven as scipy's
+    driver drives it (its iteration and evaluation limits, an evaluation at a point
+    already evaluated answered from memory), and the points the instances ask for are
+    evaluated together (:func:`values_and_grads`). The iterates are scipy's to rounding.
+    When scipy's private routine is not the one expected, or the foreshortening term is
+    weighted, the poses are refined one by one by :func:`.refine.refine`.
+
+    Args:
+        objective: The energy.
+        X0: Start genes, shape ``(K, G)`` (clipped into the bounds).
+        bounds: Gene bounds, shape ``(G, 2)``.
+        max_iterations: L-BFGS-B iterations per pose.
+        collision: Include Eq. 11.
+
+    Returns:
+        One :class:`.refine.RefineResult` per pose (``seconds`` the batch's wall time
+        divided among the poses).
+    """
+    import time
+
+    t0 = time.perf_counter()
+    X0 = np.atleast_2d(np.asarray(X0, float))
+    K, n = X0.shape
+    setulb = _setulb()
+    if K == 0:
+        return []
+    if setulb is None or objective.weights.foreshortening > 0:
+        return [refine(objective, x, bounds, max_iterations, collision) for x in X0]
+    m, maxls = 15, 20  # refine's maxcor; scipy's default line-search limit
+    factr, pgtol = 1e-10 / np.finfo(float).eps, 1e-7
+    maxfun = 2 * max_iterations + 5
+    lo = np.where(np.isinf(bounds[:, 0]), 0.0, bounds[:, 0]).astype(np.float64)
+    hi = np.where(np.isinf(bounds[:, 1]), 0.0, bounds[:, 1]).astype(np.float64)
+    fin_lo, fin_hi = np.isfinite(bounds[:, 0]), np.isfinite(bounds[:, 1])
+    nbd = np.select([fin_lo & fin_hi, fin_lo, fin_hi], [2, 1, 3], 0).astype(np.int32)
+    X = np.clip(X0, bounds[:, 0], bounds[:, 1])
+    f0, g0 = values_and_grads(objective, X, collision)
+    runs = []
+    for k in range(K):
+        runs.append({
+            "x": np.array(X[k], dtype=np.float64), "f": np.array(0.0), "g": np.zeros(n),
+            "wa": np.zeros(2 * m * n + 5 * n + 11 * m * m + 8 * m),
+            "iwa": np.zeros(3 * n, np.int32), "task": np.zeros(2, np.int32),
+            "ln_task": np.zeros(2, np.int32), "lsave": np.zeros(4, np.int32),
+            "isave": np.zeros(44, np.int32), "dsave": np.zeros(29),
+            "nit": 0, "nfev": 1, "seen": X[k].copy(), "fg": (float(f0[k]), g0[k].copy()),
+            "done": False})
+    while True:
+        asking = []
+        for r in runs:
+            while not r["done"]:
+                r["g"] = r["g"].astype(np.float64)
+                setulb(m, r["x"], lo, hi, nbd, r["f"], r["g"], factr, pgtol, r["wa"],
+                       r["iwa"], r["task"], r["lsave"], r["isave"], r["dsave"], maxls,
+                       r["ln_task"])
+                task = r["task"]
+                if task[0] == 3:  # wants f and g at x
+                    if np.array_equal(r["x"], r["seen"]):
+                        r["f"], r["g"] = r["fg"][0], r["fg"][1].copy()
+                        continue
+                    asking.append(r)
+                    break
+                if task[0] == 1:  # a new iteration
+                    r["nit"] += 1
+                    if r["nit"] >= max_iterations:
+                        task[0], task[1] = 5, 504
+                    elif r["nfev"] > maxfun:
+                        task[0], task[1] = 5, 502
+                    continue
+                r["done"] = True
+        if not asking:
+            break
+        f, g = values_and_grads(objective, np.array([r["x"] for r in asking]),
+                                collision)
+        for r, fk, gk in zip(asking, f, g, strict=True):
+            r["nfev"] += 1
+            r["seen"] = r["x"].copy()
+            r["fg"] = (float(fk), gk.copy())
+            r["f"], r["g"] = r["fg"][0], gk.copy()
+    seconds = (time.perf_counter() - t0) / K
+    return [RefineResult(r["x"].copy(), float(r["f"]), r["nit"], r["nfev"], seconds,
+                         f"task {int(r['task'][0])}: {int(r['task'][1])}") for r in runs]

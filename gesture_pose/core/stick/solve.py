@@ -28,7 +28,7 @@ from ..camera import Camera
 from ..exceptions import InputError, SolverError
 from ..rotations import exp_map, log_map, normalize, rotation_between
 from ..skeleton import Pose, Skeleton
-from .batch import refine_batch
+from .batch import refine_batch, refine_lbfgsb_batch
 from .capsules import Capsules, bone_masses, capsules_from_mesh
 from .environment import UP_ANGLE, Environment, Seat, distance_grid, find_seat
 from .figure import CharacterFigure, character_figure, spine_joint
@@ -48,7 +48,7 @@ from .pins import (
     standing_joints,
 )
 from .ranking import RankWeights, plausibility
-from .refine import RefineResult, refine
+from .refine import RefineResult
 from .threads import single_thread_blas
 
 #: A candidate whose energy after the short refinement exceeds ``HOPELESS_RATIO`` times
@@ -558,10 +558,10 @@ def _refine_long(objective: StickObjective, X: np.ndarray, bounds: np.ndarray,
                  inp: StickInput) -> list[RefineResult]:
     """L-BFGS-B of each pose ``(K, G)``, then Gauss-Newton polishing; the lower of the two.
 
-    The polish of the sum of squares refines the poses together
-    (:func:`.batch.refine_batch`).
+    Both refine the poses together (:func:`.batch.refine_lbfgsb_batch`,
+    :func:`.batch.refine_batch`).
     """
-    lb = [refine(objective, x, bounds, max_iterations=inp.refine_iterations) for x in X]
+    lb = refine_lbfgsb_batch(objective, X, bounds, max_iterations=inp.refine_iterations)
     if inp.polish_evaluations <= 0 or not lb:
         return lb
     polished = refine_batch(objective, np.array([r.x for r in lb]), bounds,
