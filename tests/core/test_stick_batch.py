@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -11,6 +13,7 @@ from gesture_pose.core.stick.batch import (
     refine_lbfgsb_batch,
     values_and_grads,
 )
+from gesture_pose.core.stick.objective import Weights
 from gesture_pose.core.stick.refine import refine, refine_least_squares
 from tests.core.test_stick_objective import footprint_problem, problem
 
@@ -107,3 +110,17 @@ def test_lockstep_lbfgsb_is_scipys():
         assert np.all((b.x >= bounds[:, 0]) & (b.x <= bounds[:, 1]))
         assert b.energy < obj.evaluate(x0[None])[0][0]
     assert refine_lbfgsb_batch(obj, X0[:0], bounds) == []
+
+
+def test_weighted_foreshortening_is_refined_one_pose_at_a_time():
+    # The foreshortening rows are not batched: with them weighted the poses are refined
+    # by the single-pose solvers, unchanged.
+    rng = np.random.default_rng(8)
+    obj, truth = problem(rng, with_grid=False)
+    obj = dataclasses.replace(obj, weights=Weights(foreshortening=0.5))
+    bounds = obj.model.bounds(np.zeros(3), 0.5)
+    X0 = np.clip(truth + rng.normal(scale=0.1, size=(2, truth.size)), *bounds.T)
+    for x0, b, c in zip(X0, refine_batch(obj, X0, bounds, 6),
+                        refine_lbfgsb_batch(obj, X0, bounds, 4), strict=True):
+        assert np.array_equal(b.x, refine_least_squares(obj, x0, bounds, 6).x)
+        assert np.array_equal(c.x, refine(obj, x0, bounds, 4).x)

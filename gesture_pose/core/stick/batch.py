@@ -364,6 +364,8 @@ def _select_step(x, B, g_h, p, p_h, d, delta, lo, hi, theta):
     k = len(x)
     ok = np.all((x + p >= lo) & (x + p <= hi), 1)
     p_value = _quadratic(B, g_h, p_h)
+    if ok.all():  # every step inside the box: taken as it is
+        return p, p_h, -p_value
     p_stride, hits = _to_bound(x, p, lo, hi)
     p_stride = np.where(ok, 1.0, p_stride)
     r_h = np.where(hits != 0, -p_h, p_h)
