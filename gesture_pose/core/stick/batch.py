@@ -17,13 +17,14 @@ The iterates are scipy's to rounding (the subproblem is solved from the eigenval
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from .capsules import axis_samples, pair_closest
-from .kinematics import N_ROOT_GENES
+from .kinematics import N_ROOT_GENES, right_jacobian
 from .objective import StickObjective, project_jacobian
 from .refine import PENETRATION_ROWS, RefineResult, refine, refine_least_squares
 
@@ -44,8 +45,6 @@ def batch_jacobians(objective: StickObjective, X: np.ndarray, state: tuple[np.nd
     Returns:
         ``(J_heads (K, n, 3, G), J_tails (K, n, 3, G))``, world units per gene unit.
     """
-    from .kinematics import right_jacobian
-
     model = objective.model
     heads, tails, frames, phi = state
     K, G = X.shape
@@ -499,8 +498,6 @@ def refine_batch(objective: StickObjective, X0: np.ndarray, bounds: np.ndarray,
         foreshortening term weighted (not batched) the poses are refined one by one by
         :func:`.refine.refine_least_squares`.
     """
-    import time
-
     t0 = time.perf_counter()
     X0 = np.atleast_2d(np.asarray(X0, float))
     K, G = X0.shape
@@ -665,8 +662,6 @@ def refine_lbfgsb_batch(objective: StickObjective, X0: np.ndarray, bounds: np.nd
         One :class:`.refine.RefineResult` per pose (``seconds`` the batch's wall time
         divided among the poses).
     """
-    import time
-
     t0 = time.perf_counter()
     X0 = np.atleast_2d(np.asarray(X0, float))
     K, n = X0.shape
