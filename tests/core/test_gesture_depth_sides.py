@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 
 from gesture_pose.core.camera import Camera
-from gesture_pose.core.gesture.depth import DepthOptions, energies, solve_pose3d, start, twist
+from gesture_pose.core.gesture.depth import (
+    DepthOptions,
+    energies,
+    regularity,
+    solve_pose3d,
+    start,
+    twist,
+)
 from gesture_pose.core.gesture.depth.regularity import spine_chain
 from gesture_pose.core.gesture.depth.synthetic import project_embedding, solving_skeleton
 from gesture_pose.core.gesture.embedding import posed_joints
@@ -519,3 +526,56 @@ def test_a_limb_swung_away_on_the_starts_wrong_side_is_held_there_by_its_lifted_
     assert at0 > 0.35  # on the wrong side either way
     assert default > at0 + 0.05
     assert at1 > default + 0.1
+
+
+def test_side_constraints_keep_each_links_depth_side():
+    """Two links of a chain of three joints, the first kept away from the viewer (+1),
+    the second towards it (-1): rows ``s (d_b - d_a) >= 0`` on the flattened joints."""
+    frame = energies.ViewFrame(np.array([1.0, 0, 0]), np.array([0, 0, 1.0]), FORWARD, 100.0)
+    c = regularity.side_constraints(np.array([0, 1]), np.array([1, 2]),
+                                    np.array([1.0, -1.0]), frame, 3)
+    assert c.labels == ("side 0-1", "side 1-2")
+    np.testing.assert_array_equal(c.matrix, [[0, -1, 0, 0, 1, 0, 0, 0, 0],
+                                             [0, 0, 0, 0, 1, 0, 0, -1, 0]])
+    np.testing.assert_array_equal(c.lower, [0.0, 0.0])
+    assert np.all(np.isinf(c.upper))
+    # The second link's tail 0.2 deeper than its head breaks its side by 0.2.
+    X = np.array([[0, 0, 0], [0, 0.5, 0], [0, 0.7, 0.3]], float)
+    np.testing.assert_allclose(c.violation(X), [0.0, 0.2])
+
+
+def test_the_lifted_limbs_drawn_foreshortened_keep_the_starts_side(monkeypatch):
+    """The spine tilted 70 degrees towards the viewer and the left arm swung 70 degrees
+    towards it on top (perspective front camera): the links E_v leaves free are the
+    spine's (drawn at 0.43 of its length), the upper arm's (0.36) and the forearm's
+    (0.43); the limb bones among them, and not the spine, whose links the start sides
+    one by one, keep the start's side (towards the viewer) through the SQP."""
+    sk = _figure_with_arms()
+    s = solving_skeleton(sk)
+    bone = {n: i for i, n in enumerate(sk.names)}
+    cam = front_camera()
+    pose = turned_about_x(sk, Pose.identity(sk.n_bones), ((bone["spine"], 70.0),))
+    state = sk.forward(pose)
+    arm = bone["upper_arm.L"]
+    world = exp_map(np.array([0.0, 0.0, np.radians(-70.0)]))
+    rot = sk.local_rotation_for_frame(arm, world @ state.frames[arm], state)
+    pose = pose.with_rotations(np.array([arm]), rot[None])
+    emb = project_embedding(sk, s, pose, cam)
+    rows = []
+    built = regularity.side_constraints
+
+    def spy(*args, **kwargs):
+        rows.append(built(*args, **kwargs))
+        return rows[-1]
+
+    monkeypatch.setattr(regularity, "side_constraints", spy)
+    res = solve_pose3d(sk, emb, cam)
+    assert [c.labels for c in rows] == [("side upper_arm.L", "side forearm.L")]
+    X = res.joints3d
+    for name in ("upper_arm.L", "forearm.L"):
+        k = list(s.bones).index(bone[name])
+        assert res.depth_sides[k] == -1.0
+        assert (X[s.tail_joint[k]] - X[s.head_joint[k]]) @ FORWARD < 0.0
+    rows.clear()
+    solve_pose3d(sk, emb, cam, options=DepthOptions(keep_limb_sides=False))
+    assert rows == []

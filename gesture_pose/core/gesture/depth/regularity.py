@@ -227,6 +227,32 @@ def contact_constraints(pairs: np.ndarray, embedding: Embedding2D, frame: ViewFr
     return LinearConstraint(A.reshape(len(pairs), 3 * n_j), -reach, reach, names)
 
 
+def side_constraints(a: np.ndarray, b: np.ndarray, sides: np.ndarray, frame: ViewFrame,
+                     n_joints: int, labels: tuple[str, ...] = ()) -> LinearConstraint:
+    """``s (d_b - d_a) >= 0``: each link keeps the depth side ``s`` (ours).
+
+    Args:
+        a: Parent joint of each link, shape ``(k,)``.
+        b: Child joint of each link, shape ``(k,)``.
+        sides: Depth side of each link, +1 (its child joint deeper: away from the viewer)
+            or -1, shape ``(k,)``.
+        frame: The view (``forward``: depth grows along it).
+        n_joints: ``J``.
+        labels: One label per link (optional).
+
+    Returns:
+        One-sided rows on the flattened joint positions, ``(k, 3J)``.
+    """
+    sides = np.asarray(sides, float)
+    A = np.zeros((len(a), n_joints, 3))
+    idx = np.arange(len(a))
+    A[idx, b] += frame.forward
+    A[idx, a] -= frame.forward
+    names = labels or tuple(f"side {i}-{j}" for i, j in zip(a, b, strict=True))
+    return LinearConstraint(A.reshape(len(a), 3 * n_joints) * sides[:, None],
+                            np.zeros(len(a)), np.full(len(a), np.inf), tuple(names))
+
+
 def limbs(joint_parent: np.ndarray) -> list[np.ndarray]:
     """Joint paths from each branch point (or root) down to each terminal joint.
 
