@@ -374,6 +374,25 @@ def test_a_joint_slid_along_a_straight_spine_is_put_back_where_the_bind_pose_has
     np.testing.assert_allclose(out[chain[1]], emb.joints2d[chain[1]], atol=1e-9)
     np.testing.assert_allclose(np.delete(out, chain[1], axis=0),
                                np.delete(bent, chain[1], axis=0), atol=1e-12)
+    # The first run drawn within its lengths but unlike: its second link at half its
+    # length under the first at its full length, a 60-degree bend in depth at the joint
+    # between them inside a spine drawn straight. Kept by default; respaced when the links'
+    # foreshortening may differ by at most 0.3 (ours, ``DepthOptions.spine_run_spread``):
+    # the joint goes to the middle of the run, as in the bind pose's image.
+    unlike = emb.joints2d.copy()
+    unlike[below] = unlike[chain[2]] + (unlike[below] - unlike[chain[2]]) @ rot.T
+    shift = 0.5 * (unlike[chain[2]] - unlike[chain[1]])
+    unlike[below | (np.arange(s.n_joints) == chain[2])] -= shift
+    np.testing.assert_array_equal(spine_runs(s, unlike, s.rest_joints, frame), unlike)
+    out = spine_runs(s, unlike, s.rest_joints, frame, max_spread=0.3)
+    np.testing.assert_allclose(out[chain[1]], 0.5 * (unlike[chain[0]] + unlike[chain[2]]),
+                               atol=1e-12)
+    np.testing.assert_array_equal(np.delete(out, chain[1], axis=0),
+                                  np.delete(unlike, chain[1], axis=0))
+    # A run ending at the body's axis' free end (the head's tip) keeps an unlike last
+    # link at any spread: a head nods far in depth at the neck.
+    np.testing.assert_array_equal(spine_runs(s, short, s.rest_joints, frame, max_spread=0.3),
+                                  short)
 
 
 def test_a_limb_drawn_near_its_bind_direction_but_moved_takes_the_default_side():

@@ -434,7 +434,8 @@ def _follower_mask(solving: SolvingSkeleton, radius: np.ndarray | None,
 
 def spine_runs(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.ndarray,
                frame: ViewFrame, max_angle: float = np.radians(10.0),
-               max_ratio: float = 1.05, radius: np.ndarray | None = None) -> np.ndarray:
+               max_ratio: float = 1.05, radius: np.ndarray | None = None,
+               max_spread: float = np.inf) -> np.ndarray:
     """Drawn joints with the spine's straight runs spaced as in the bind pose's image.
 
     Consecutive links of the body's axis (:func:`spine_chain` through its branch points:
@@ -444,14 +445,20 @@ def spine_runs(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.n
     along the drawn polyline so that the links divide its length as their bind-pose
     images do. The 2D fit slides a joint with its rigid neighbourhood (a chest with the
     shoulder heads and the clavicles' tails, :func:`rigid_followers`), so each moved
-    joint's followers off the axis are translated with it. The run's ends, its drawn path
-    and every other joint stay; a run drawn within its lengths keeps its joints (one link
-    may be foreshortened). (On the benchmark's traced drawings the 2D fit drew a pelvis
-    link at 40% of its length and the chest above it at 162%, which the solve read as a
-    47 degree pelvis tilt; the run as a whole was drawn at its full length. The same
-    slide at the chest, whose tail the 2D fit draws up the neck (chests at 112-193% of
-    their length), left necks at 34-86% and heads at 14-65%, turned up to 90 degrees out
-    of the view plane; hence the run through the neck to the head.)
+    joint's followers off the axis are translated with it. A run that stops short of the
+    axis' free end (at a bend or a branch) is respaced too when its links' drawn
+    foreshortening differs by more than ``max_spread`` (ours): links drawn in line at
+    1.0 and 0.7 of their lengths would bend the spine by 45 degrees in depth at the
+    joint between them, and the 2D fit's slide of that joint is the likelier reading;
+    at the free end (a head nodding towards the viewer at the neck) a turned last link
+    is not. The run's ends, its drawn path and every other joint stay; a run drawn
+    within its lengths keeps its joints otherwise. (On the benchmark's traced drawings
+    the 2D fit drew a pelvis link at 40% of its length and the chest above it at 162%,
+    which the solve read as a 47 degree pelvis tilt; the run as a whole was drawn at its
+    full length. The same slide at the chest, whose tail the 2D fit draws up the neck
+    (chests at 112-193% of their length), left necks at 34-86% and heads at 14-65%,
+    turned up to 90 degrees out of the view plane; hence the run through the neck to
+    the head.)
 
     Args:
         solving: The solving skeleton.
@@ -462,6 +469,9 @@ def spine_runs(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.n
         max_ratio: Drawn over 3D length of a link above which its run is respaced.
         radius: Drawn radius of each joint, pixels, ``(J,)``, for the interior tails
             among the followers (:func:`rigid_followers`), or None (rigid offsets only).
+        max_spread: Largest difference of the drawn over 3D lengths of the links of a
+            run short of the axis' free end for its joints to stay (``inf``: only
+            ``max_ratio`` decides).
 
     Returns:
         The drawn joints, respaced, shape ``(J, 2)``.
@@ -487,7 +497,8 @@ def spine_runs(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.n
             continue
         joints = chain[start:i + 2]  # links start..i
         if (len(joints) > 2 and bind[start:i + 1].sum() > 1e-12
-                and ratio[start:i + 1].max() > max_ratio):
+                and (ratio[start:i + 1].max() > max_ratio
+                     or (i + 1 < len(drawn) and np.ptp(ratio[start:i + 1]) > max_spread))):
             pts = out[joints]
             arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))]
             target = np.r_[0.0, np.cumsum(bind[start:i + 1])] / bind[start:i + 1].sum() \
