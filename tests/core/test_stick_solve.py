@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
+import threading
+
 import numpy as np
 import pytest
 
@@ -33,6 +36,7 @@ from gesture_pose.core.stick.solve import (
     _spine_flipped,
     solve_stick,
 )
+from gesture_pose.core.stick.threads import in_background, row_threads, split_rows
 from tests.core.test_stick_figure import humanoid_skeleton
 from tests.core.test_stick_objective import chair_env
 
@@ -427,3 +431,48 @@ def test_limb_flips_run_only_when_pins_or_a_seat_fix_the_depth(monkeypatch):
         seen[name] = (len(calls), res.seat is not None)
         assert all(n > 0 for n in calls)  # given the refined candidates
     assert seen == {"free": (0, False), "pinned": (1, False), "seated": (1, True)}
+
+
+def test_two_threads_give_the_same_suggestions_as_one():
+    # The genetic search's populations in two fixed chunks of rows (one in the worker
+    # thread) and the distance grid built meanwhile: bit-identical results.
+    sk, fig, cam, stick, pins, _ = _stand_problem(noise=1.0, seed=2)
+    inp = StickInput(sk, cam, stick=stick, environment=chair_env(), env_pins=pins, seed=2,
+                     n_suggestions=2, ga=GAConfig(population=384, max_generations=6))
+    one = solve_stick(dataclasses.replace(inp, threads=1))
+    two = solve_stick(inp)
+    assert inp.threads == 2
+    assert len(one.suggestions) == len(two.suggestions)
+    for a, b in zip(one.suggestions, two.suggestions, strict=True):
+        assert np.array_equal(a.genes, b.genes)
+        assert np.array_equal(a.joints, b.joints)
+        assert a.score == b.score
+
+
+def test_split_rows_joins_two_fixed_chunks():
+    seen = []
+
+    def fn(x, y):
+        seen.append((len(x), threading.get_ident()))
+        # Nested splits run in the chunk's own thread.
+        inner = split_rows(lambda z: z * 2.0, x)
+        return inner + y, {"sum": np.sum(x, 1)}
+
+    x = np.arange(300 * 4, dtype=float).reshape(300, 4)
+    y = np.ones((300, 4))
+    assert split_rows(fn, x, y)[0].shape == (300, 4) and len(seen) == 1  # one thread
+    seen.clear()
+    with row_threads(2):
+        out, terms = split_rows(fn, x, y)
+        assert sorted(n for n, _ in seen) == [128, 172]  # cut at a multiple of 64
+        assert len({t for _, t in seen}) == 2
+        assert np.array_equal(out, 2.0 * x + 1.0)
+        assert np.array_equal(terms["sum"], np.sum(x, 1))
+        assert split_rows(lambda z: z + 1.0, x[:10])[0, 0] == 1.0  # few rows: one call
+        with pytest.raises(ZeroDivisionError):  # raised in the worker's chunk
+            split_rows(lambda z: z if len(z) > 150 else 1 // 0, x)
+        task = in_background(lambda a: a.sum(), x)
+        assert task.result() == x.sum()
+    with pytest.raises(ValueError):
+        with row_threads(3):
+            pass

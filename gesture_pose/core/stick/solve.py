@@ -49,7 +49,7 @@ from .pins import (
 )
 from .ranking import RankWeights, plausibility
 from .refine import RefineResult
-from .threads import single_thread_blas
+from .threads import in_background, row_threads, single_thread_blas, split_rows
 
 #: A candidate whose energy after the short refinement exceeds ``HOPELESS_RATIO`` times
 #: the best one's plus ``HOPELESS_MARGIN`` is not refined further.
@@ -127,6 +127,9 @@ class StickInput:
         refine_iterations: L-BFGS-B iterations for each suggestion's final refinement.
         polish_evaluations: Gauss-Newton residual evaluations that follow them (0: none).
         rank: Weights of the plausibility score that orders the suggestions.
+        threads: Threads evaluating the large populations (1 or 2: two fixed chunks of
+            rows, one in a worker thread; :func:`.threads.split_rows`). The results are
+            the same either way.
     """
 
     skeleton: Skeleton
@@ -150,6 +153,7 @@ class StickInput:
     refine_iterations: int = 10
     polish_evaluations: int = 20
     rank: RankWeights = field(default_factory=RankWeights)
+    threads: int = 2
 
 
 @dataclass(frozen=True)
@@ -582,7 +586,7 @@ def solve_stick(inp: StickInput) -> StickResult:
         InputError: The drawing does not match the character, or bad pins.
         SolverError: No finite solution was found.
     """
-    with single_thread_blas():
+    with single_thread_blas(), row_threads(inp.threads):
         return _solve(inp)
 
 
@@ -635,7 +639,7 @@ def _solve(inp: StickInput) -> StickResult:
     ppu = drawing_scale(stick, rigid if np.isfinite(rigid[drawn]).any() else lengths)
     depth_guess = _depth_for_scale(cam, ppu, stick.points[pelvis_j])
     root_range = 0.3 * height
-    grid = None
+    grid, grid_task = None, None
     # Distances are looked up to beyond the thickest capsule (a capsule thicker than the
     # grid's reach would read as always penetrating).
     reach = max(0.2, 1.1 * float(caps.radii.max(initial=0.0)))
@@ -663,7 +667,10 @@ def _solve(inp: StickInput) -> StickResult:
                           else FREE_ROOT_RANGE_HORIZONTAL) * height
         root = cam.unproject_at_depth(stick.points[pelvis_j][None], depth)[0]
         if env is not None and len(env.triangles):
-            grid = distance_grid(env, root, 0.75 * height, max_distance=reach)
+            # Built in the worker thread (threads 2) while the genetic search runs: its
+            # energy leaves collisions out.
+            grid_task = in_background(lambda c: distance_grid(env, c, 0.75 * height,
+                                                              max_distance=reach), root)
     stick, factor = normalize_figure(stick, longest,
                                      _nearest_scales(cam, root, figure, longest), pelvis_j)
     if factor < 1.0:
@@ -710,8 +717,11 @@ def _solve(inp: StickInput) -> StickResult:
     rng = np.random.default_rng(inp.seed)
     init = _initial_population(model, bounds, inp.ga.population, stick, cam,
                                root - base_root, inp.facing, rng)
-    ga = genetic_search(lambda X: objective.evaluate(X, collision=False)[0], bounds, init,
-                        rng, inp.ga)
+    ga = genetic_search(
+        lambda X: split_rows(lambda Y: objective.evaluate(Y, collision=False)[0], X),
+        bounds, init, rng, inp.ga)
+    if grid_task is not None:
+        objective = dataclasses.replace(objective, grid=grid_task.result())
     timings["genetic"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     # Distinct good individuals of the GA (different basins), shortly refined.

@@ -1,5 +1,8 @@
-"""Single-threaded BLAS while solving: see :mod:`gesture_pose.core.threads`."""
+"""Single-threaded BLAS and two row chunks in two threads while solving.
 
-from ..threads import single_thread_blas
+See :mod:`gesture_pose.core.threads`.
+"""
 
-__all__ = ["single_thread_blas"]
+from ..threads import in_background, row_threads, single_thread_blas, split_rows
+
+__all__ = ["in_background", "row_threads", "single_thread_blas", "split_rows"]
