@@ -55,12 +55,15 @@ def _trace(arm, target="Traced Contours", **kwargs):
 #
 #   pose            median  mean  max   joints within 4%
 #   rest            0.36    0.31  0.79  100% (refined from the pose, see below)
-#   step            1.99    2.19  4.07  84%  (the left toe 4.07, drawn at 55% of its length;
-#                                            the pelvis group 24 px high, 4.002)
+#   step            1.68    2.06  4.00  88%  (the pelvis group 24 px high, 4.002: the energy
+#                                            prefers it, by 0.5; docs/gesture.md)
 #   raise_left_arm  0.82    1.12  2.84  100%
 #   reach           1.23    1.38  3.18  100%
-#   crouch          1.42    1.91  3.95  100% (thighs pointing at the viewer, drawn at a third
+#   crouch          1.32    1.67  3.58  100% (thighs pointing at the viewer, drawn at a third
 #                                            of their length)
+#
+# (Coverage traded for energy at a rate, embedding._accepts: before it the step's left toe
+# was 4.07 off, its foot lying on the shin's outline, and the crouch's worst joint 3.95.)
 #
 # With the paper's costs for those bones (`foreshortening` 0, `exposed_conformity` False,
 # `refined_resolves` 0; the defaults before this round): step 2.55 / 2.51 / 5.14 / 80% (the
@@ -78,16 +81,16 @@ def _trace(arm, target="Traced Contours", **kwargs):
 # drawing: from the discrete answer the chest's rigid group stopped 20 px high.
 #
 # So the check holds for rest, raise_left_arm, reach and crouch
-# (test_every_joint_within_4_percent; the step is an expected failure, its left toe 0.07
-# over). The limits below are those measurements plus a margin for platform noise only
+# (test_every_joint_within_4_percent; the step is an expected failure, its pelvis group
+# 0.002 over). The limits below are those measurements plus a margin for platform noise only
 # (half a percent on the median, one joint on the share): the median error, and the share
 # of joints the 4% already holds for.
 @pytest.mark.parametrize("pose_name,median_limit,within_limit", [
-    ("step", 2.5, 0.80),
+    ("step", 2.2, 0.84),
     ("rest", 0.86, 0.96),
     ("raise_left_arm", 1.35, 0.96),
     ("reach", 1.75, 0.96),
-    ("crouch", 1.95, 0.96),
+    ("crouch", 1.85, 0.96),
 ])
 def test_fit_finds_the_joints_of_traced_poses(registered, pose_name, median_limit,
                                               within_limit):
@@ -118,7 +121,7 @@ def _not_yet(reason: str):
 
 @pytest.mark.parametrize("pose_name", [
     "rest",
-    pytest.param("step", marks=_not_yet("the left toe 4.07%, the pelvis group 4.002% high")),
+    pytest.param("step", marks=_not_yet("the pelvis group 24 px (4.002%) high")),
     "raise_left_arm",
     "reach",
     "crouch",

@@ -322,7 +322,13 @@ def test_an_enumerated_solution_is_accepted_by_the_constraints_or_its_gains():
     assert not embedding._accepts((got(0, 0.60), 9.0), old, params)  # lost coverage
     assert embedding._accepts((got(1, 0.75), 5.4), old, params)      # covers more
     assert not embedding._accepts((got(1, 0.75), 5.6), old, params)  # for too much
-    assert not embedding._accepts((got(1, 0.71), 5.0), old, params)  # too little gain
+    # Coverage and energy trade at 0.5 per 0.02 (0.25 per percent of the drawing).
+    assert embedding._accepts((got(1, 0.71), 5.2), old, params)      # 1% for 0.2
+    assert not embedding._accepts((got(1, 0.71), 5.3), old, params)  # 1% for 0.3
+    assert not embedding._accepts((got(1, 0.75), 5.0 + 0.51), old, params)  # capped
+    assert not embedding._accepts((got(1, 0.70), 5.0), old, params)  # no gain at all
+    assert embedding._accepts((got(1, 0.69), 4.7), old, params)      # 1% less for 0.3 less
+    assert not embedding._accepts((got(1, 0.69), 4.8), old, params)  # 1% less for 0.2 less
 
 
 def test_coverage_moves_keep_the_best_solve_the_rule_accepts(monkeypatch):
