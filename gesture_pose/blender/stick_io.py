@@ -206,6 +206,10 @@ def read_stick_scene(context, arm_obj, sketch_obj, snap_radius: float = SNAP_RAD
     if not strokes:
         raise InputError(f"'{sketch_obj.name}' has no strokes at this frame: draw a stick "
                          "figure (spine, head, arms, legs) over the scene.")
+    for s in strokes:
+        if not np.all(np.isfinite(s.points_world)):
+            raise InputError(f"Stroke {s.index} of layer '{s.layer_name}' has NaN or infinite "
+                             "coordinates: delete it and draw it again.")
     pts = [camera.project(s.points_world) for s in strokes]
     if not all(np.all(np.isfinite(p)) for p in pts):
         raise InputError("Part of the drawing is behind the view: draw in front of the "

@@ -30,6 +30,7 @@ from ..panel import GesturePoseSubPanel
 from ..read_armature import read_armature
 from ..stick_io import (
     StickDragSession,
+    base_pose,
     environment_objects,
     read_environment,
     read_pins,
@@ -210,7 +211,10 @@ class GESTUREPOSE_OT_next_suggestion(GesturePoseOperatorMixin, bpy.types.Operato
         k = (int(stored.get("current", 0)) + self.step) % n
         pose = Pose(np.array(stored["rotations"][k]), np.array(stored["translations"][k]))
         figure, _ = character_figure(data.skeleton, data.ik_limits)
-        written = apply_pose(arm, data, pose, insert_keys=self.insert_keys,
+        # Only the bones a solve poses: a suggestion also holds the others' rotations at
+        # the time of the solve, which the user may have changed since.
+        _, solved = base_pose(data, figure)
+        written = apply_pose(arm, data, pose, bones=solved, insert_keys=self.insert_keys,
                              frame=context.scene.frame_current,
                              location_bones=[figure.root_bone])
         set_current_suggestion(context.scene, k)
@@ -327,7 +331,7 @@ class GESTUREPOSE_OT_edit_stick_figure(_StickSolveProps, bpy.types.Operator):
             arm = resolve_armature(context, self.armature)
             sketch = resolve_sketch(context, self.sketch, arm)
             self._session = StickDragSession(context, self, arm, sketch, self.global_radius)
-        except InputError as err:
+        except GesturePoseError as err:
             self.report({"ERROR"}, str(err))
             return {"CANCELLED"}
         context.window_manager.modal_handler_add(self)
@@ -340,7 +344,7 @@ class GESTUREPOSE_OT_edit_stick_figure(_StickSolveProps, bpy.types.Operator):
         xy = (event.mouse_region_x, event.mouse_region_y)
         try:
             state = self._session.handle(event.type, event.value, xy, context)
-        except InputError as err:
+        except GesturePoseError as err:  # a failed solve on release: the editing goes on
             self.report({"ERROR"}, str(err))
             state = "RUNNING_MODAL"
         if state == "FINISHED":
