@@ -33,6 +33,7 @@ from gesture_pose.blender.stick_io import (
     read_suggestions,
     store_suggestions,
 )
+from gesture_pose.blender.write_pose import rotation_channel
 from gesture_pose.core.gesture.depth.synthetic import project_embedding
 from gesture_pose.core.gesture.solving import solving_skeleton
 from gesture_pose.core.stick.figure import character_figure
@@ -109,9 +110,9 @@ def _assert_same(before: dict, after: dict) -> None:
             np.testing.assert_array_equal(after[part][k], v, err_msg=f"{part} {k}")
 
 
-def _keyed_bones(before: dict[tuple[str, int], np.ndarray], frame: int) -> set[str]:
+def _keyed_bones(arm, before: dict[tuple[str, int], np.ndarray], frame: int) -> set[str]:
     """Bones whose keys changed since ``before``; fails if any key off ``frame`` changed."""
-    after = _keys(bpy.data.objects[_ARM])
+    after = _keys(arm)
     assert set(before) <= set(after), "an F-curve was removed"
     changed = set()
     for path, co in after.items():
@@ -121,9 +122,6 @@ def _keyed_bones(before: dict[tuple[str, int], np.ndarray], frame: int) -> set[s
         if co.shape != old.shape or not np.array_equal(co, old):
             changed.add(_BONE.match(path[0]).group(1))
     return changed
-
-
-_ARM = "Humanoid"
 
 
 # -- running operators -------------------------------------------------------------------
@@ -187,8 +185,8 @@ NO_ARMATURE_OPS = ("pose_drawing", "fit_drawing", "trace_contours", "flip_depth"
 
 @pytest.mark.parametrize("name", NO_ARMATURE_OPS)
 def test_no_armature_is_refused(registered, returned, name) -> None:
-    mesh = builders.build_humanoid()[1]
-    bpy.data.objects.remove(bpy.data.objects[_ARM])  # the mesh is left, unskinned
+    arm, mesh = builders.build_humanoid()
+    bpy.data.objects.remove(arm)  # the mesh is left, unskinned
     builders.add_camera(mesh)
     bpy.context.scene.frame_set(FRAME)
     builders.add_grease_pencil("Sketch", [np.array([[0.0, -0.5, 1.0], [0.2, -0.5, 1.4]]),
@@ -283,8 +281,7 @@ def _preset_keys(arm, changed: str, untouched: str) -> None:
 
 
 def rotation_channel_of(pb) -> str:
-    from gesture_pose.blender.write_pose import rotation_channel
-
+    """The channel holding the pose bone's rotation in its mode."""
     return rotation_channel(pb.rotation_mode)
 
 
@@ -320,7 +317,7 @@ def test_flip_depth_keys_only_the_limb_at_the_current_frame(registered, returned
     _preset_keys(arm, "forearm.L", "head")
     before, keys = _snapshot(arm), _keys(arm)
     assert _run("flip_depth", arm, armature=arm.name, bone="forearm.L") == {"FINISHED"}
-    changed = _keyed_bones(keys, FRAME)
+    changed = _keyed_bones(arm, keys, FRAME)
     assert "forearm.L" in changed and changed <= {"forearm.L", "hand.L", "fingers.L"}
     after = _snapshot(arm)
     for name, m in before["pose"].items():
@@ -378,7 +375,7 @@ def test_pose_keys_only_changed_solving_bones_at_the_current_frame(registered, r
                                                              [0.1, -1.0, 0.5]])])
     before, keys = _snapshot(arm), _keys(arm)
     assert _run("pose_drawing", arm, armature=arm.name, sketch=sketch.name) == {"FINISHED"}
-    changed = _keyed_bones(keys, FRAME)
+    changed = _keyed_bones(arm, keys, FRAME)
     names = set(np.array(truth.names)[solving.bones])
     assert "upper_arm.L" in changed and changed <= names
     after = _snapshot(arm)
@@ -432,7 +429,7 @@ def test_abstraction_operators_key_only_changed_bones_at_the_current_frame(
     _preset_keys(arm, "forearm.L", "head")
     before, keys = _snapshot(arm), _keys(arm)
     assert _run(name, arm, armature=arm.name, sketch=sketch.name, **kwargs) == {"FINISHED"}
-    changed = _keyed_bones(keys, FRAME)
+    changed = _keyed_bones(arm, keys, FRAME)
     assert "forearm.L" in changed and changed <= LEFT_ARM
     after = _snapshot(arm)
     for bone in set(before["pose"]) - changed:
@@ -468,7 +465,7 @@ def test_pose_stick_figure_keys_only_solved_bones_at_the_current_frame(registere
     before, keys = _snapshot(arm), _keys(arm)
     assert _run("pose_stick_figure", arm, armature=arm.name, sketch="Sketch",
                 suggestions=1) == {"FINISHED"}
-    changed = _keyed_bones(keys, FRAME)
+    changed = _keyed_bones(arm, keys, FRAME)
     assert {"pelvis", "thigh.L"} <= changed <= set(solved)
     after = _snapshot(arm)
     for name in unsolved:
@@ -505,7 +502,7 @@ def test_next_suggestion_leaves_bones_the_solve_does_not_pose(registered, return
     _preset_keys(arm, "thigh.L", finger)
     before, keys = _snapshot(arm), _keys(arm)
     assert _run("next_suggestion", arm) == {"FINISHED"}
-    changed = _keyed_bones(keys, FRAME)
+    changed = _keyed_bones(arm, keys, FRAME)
     assert changed == {"thigh.L"}
     after = _snapshot(arm)
     for name in unsolved:
