@@ -255,7 +255,8 @@ def _to_bound(x: np.ndarray, s: np.ndarray, lo: np.ndarray, hi: np.ndarray
     """
     nz = s != 0
     safe = np.where(nz, s, 1.0)
-    steps = np.where(nz, np.maximum((lo - x) / safe, (hi - x) / safe), np.inf)
+    with np.errstate(over="ignore"):  # a tiny step component: that bound is never met
+        steps = np.where(nz, np.maximum((lo - x) / safe, (hi - x) / safe), np.inf)
     t = steps.min(1)
     return t, (steps == t[:, None]) * np.sign(s).astype(int)
 
