@@ -16,6 +16,15 @@ alternative whose drawing energy does not rise is clearly more plausible
 (:func:`pose_cost`: the legs' and arms' ranges of :mod:`.plausibility`, and the twist
 between pelvis and chest).
 
+Between labellings the ranges do not tell apart (both within them, or alike out of
+them) the one that draws more links as the bind pose shows them is kept
+(:func:`bind_links`, E_b's agreement): most drawings change a few limbs and leave the rest
+as they are. This is Section 5.4's least twisted permutation read per link on the lifted
+labels: the 2D fit reads it as the image's left/right order against the bind pose's, which
+a limb swung across its partner in an oblique view reverses (the sample quadruped's front
+paw lifted forward, seen from its left and front, was fitted with its front legs crossed
+below the shoulders, both moved, whose 3D lift is as plausible as the truth's).
+
 What the ranges cannot decide: the facing. A body seen from its back and labelled as
 facing the viewer lifts to the depth mirror image of the truth with left and right
 exchanged, a reflection of a body that is itself a body, with the same joint angles:
@@ -29,7 +38,7 @@ therefore left out by default (``LabelLimits.facing``).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -39,7 +48,7 @@ from ...exceptions import SolverError
 from ...skeleton import Pose, Skeleton
 from ..consistency import symmetric_limbs
 from ..types import Embedding2D, SolvingSkeleton
-from . import ordering, plausibility
+from . import energies, ordering, plausibility
 from .solve3d import DepthOptions, Pose3DResult, rest_front, solve_pose3d
 
 
@@ -63,12 +72,19 @@ class LabelLimits:
             ranges cannot tell it (module docstring); on the Adventurer's 40 front
             drawings they chose it in 5, on the sample drawings in 2, one of them wrong
             (the front run, 10.7 -> 25.9 % of the height).
+        bind_links: Between labellings the ranges do not tell apart (costs within
+            ``margin`` of each other), prefer one that draws at least this many more
+            links as the bind pose shows them (:func:`bind_links`, E_b's agreement summed):
+            Section 5.4's least twisted permutation, read per link against the bind
+            pose's image instead of by the left/right order (module docstring). None:
+            the 2D fit's labels stay unless the ranges choose.
     """
 
     margin: float = 15.0
     energy_rise: float = 0.0
     torso_twist: float = 60.0
     facing: bool = False
+    bind_links: float | None = 0.2
 
 
 @dataclass(frozen=True)
@@ -85,13 +101,16 @@ class LabelChoice:
             ``"thigh.L/thigh.R below"``; ``"all pairs"`` with ``LabelLimits.facing``).
         swaps: Joint pairs each alternative exchanges, each ``(k, 2)`` int.
         costs: :func:`pose_cost` of each alternative's solved pose, degrees, ``(n,)``;
-            NaN for those not solved (the fitted labels' pose within ``margin`` of
-            plausible, a rig without left/right pairs, or a solve that raised
-            :class:`SolverError`).
+            NaN for those not solved (a rig without left/right pairs, a solve that
+            raised :class:`SolverError`, or, the fitted labels' pose within ``margin``
+            of plausible, one drawing fewer than ``LabelLimits.bind_links`` more links
+            as at bind than the fitted labels).
         energies: Drawing energy (E_c plus the weighted E_v) of each, ``(n,)`` (NaN
             where not solved).
         seconds: Wall time of the choice (the fitted labels' solve included unless it
             was given), seconds.
+        links: :func:`bind_links` of each alternative, links, ``(n,)`` (empty for a rig
+            without left/right pairs).
     """
 
     result: Pose3DResult
@@ -102,6 +121,7 @@ class LabelChoice:
     costs: np.ndarray
     energies: np.ndarray
     seconds: float
+    links: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def limb_uppers(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
@@ -283,6 +303,31 @@ def pose_cost(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray, p
     return cost
 
 
+def bind_links(embedding: Embedding2D, frame: energies.ViewFrame,
+               options: DepthOptions) -> float:
+    """How many links the embedding draws as the bind pose shows them (ours).
+
+    The sum over the joint tree's links of E_b's agreement
+    (:func:`.energies.bind_agreement`, ``DepthOptions.bind_sigma``): 1 for a link drawn
+    exactly as in the bind pose seen in the view, falling off with the image distance
+    between the two link vectors.
+
+    Args:
+        embedding: The 2D embedding.
+        frame: The view frame (:func:`.solve3d.rest_front`).
+        options: 3D parameters (``bind_sigma``).
+
+    Returns:
+        The summed agreement, links, in ``[0, L]``.
+    """
+    s = embedding.solving
+    a, b = energies.joint_links(np.asarray(s.joint_parent))
+    rest = np.asarray(s.rest_joints, float)
+    height = float(np.ptp(rest, axis=0).max())
+    return float(energies.bind_agreement(embedding.joints2d, a, b, rest[b] - rest[a], frame,
+                                         height, options.bind_sigma).sum())
+
+
 def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
                   pose: Pose | None = None, *, options: DepthOptions | None = None,
                   limits: LabelLimits = LabelLimits(), fitted: Pose3DResult | None = None,
@@ -293,8 +338,12 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     (:func:`.solve3d.solve_pose3d` with ``options`` and ``solve_kwargs``) and scored by
     :func:`pose_cost`. The 2D fit's labels are kept unless an alternative whose drawing
     energy is at most ``limits.energy_rise`` above theirs costs at least
-    ``limits.margin`` less; of those, the least costly. When the fitted labels' pose
-    costs less than ``limits.margin`` none can, and the alternatives are not solved.
+    ``limits.margin`` less; of those, the least costly. Failing that, an alternative
+    whose drawing energy does not rise either, whose cost is within ``limits.margin`` of
+    the fitted labels' and which draws at least ``limits.bind_links`` more links as the
+    bind pose shows them (:func:`bind_links`) is taken, the one drawing most (ours). When
+    the fitted labels' pose costs less than ``limits.margin`` only the alternatives
+    drawing that much more as at bind are solved.
 
     Args:
         skeleton: The full skeleton.
@@ -316,7 +365,7 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     opts = options or DepthOptions()
     s = embedding.solving
     t0 = time.perf_counter()
-    _, up, front = rest_front(embedding, camera, opts)
+    frame, up, front = rest_front(embedding, camera, opts)
     alternatives = label_alternatives(
         s, limits.facing, limb_uppers(skeleton, s, np.asarray(s.bones), up))
     names = tuple(n for n, _ in alternatives)
@@ -330,19 +379,25 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
         return LabelChoice(base, embedding, 0, names, swaps, costs, energy,
                            time.perf_counter() - t0)
     costs[0] = pose_cost(skeleton, s, base.bones, base.pose, front, up, limits)
-    if costs[0] < limits.margin:
-        # No labelling can cost ``margin`` less (costs are never negative): the others
-        # are not solved.
+    embeddings = [embedding] + [relabel(embedding, p) for p in swaps[1:]]
+    agree = np.array([bind_links(e, frame, opts) for e in embeddings])
+    # The facing (every pair at once) is the 2D fit's front-facing choice, not a limb's
+    # crossing: the agreement does not re-choose it.
+    gains = (agree >= agree[0] + limits.bind_links if limits.bind_links is not None
+             else np.zeros(len(agree), bool)) & (np.array(names) != "all pairs")
+    plausible = costs[0] < limits.margin
+    if plausible and not np.any(gains):
+        # No labelling can cost ``margin`` less (costs are never negative), none draws
+        # more as at bind: the others are not solved.
         return LabelChoice(base, embedding, 0, names, swaps, costs, energy,
-                           time.perf_counter() - t0)
-    results, embeddings = [base], [embedding]
+                           time.perf_counter() - t0, agree)
+    results = [base]
     # Joints a T-junction read from the drawing turned (an enforced order) keep their
     # labels: the drawing decided that limb (ours).
     turned = ordering.turned_joints(base.ordering)
     for k, pairs in enumerate(swaps[1:], start=1):
-        emb = relabel(embedding, pairs)
-        embeddings.append(emb)
-        if np.isin(np.asarray(pairs), turned).any():
+        emb = embeddings[k]
+        if np.isin(np.asarray(pairs), turned).any() or (plausible and not gains[k]):
             results.append(base)
             continue
         try:
@@ -355,8 +410,14 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
         results.append(res)
         energy[k] = res.e_conformity + res.e_foreshortening
         costs[k] = pose_cost(skeleton, s, res.bones, res.pose, front, up, limits)
-    ok = energy <= (1.0 + limits.energy_rise) * energy[0] + 1e-12
-    ok &= costs <= costs[0] - limits.margin
+    fits = energy <= (1.0 + limits.energy_rise) * energy[0] + 1e-12
+    ok = fits & (costs <= costs[0] - limits.margin)
     chosen = int(np.argmin(np.where(ok, costs, np.inf))) if np.any(ok) else 0
+    tie = fits & gains & (np.abs(costs - costs[0]) < limits.margin)
+    if not np.any(ok) and np.any(tie):
+        # The ranges do not tell the labellings apart: the one that leaves more of the
+        # drawing as the bind pose shows it (Section 5.4's least twisted permutation,
+        # per link; ours).
+        chosen = int(np.argmax(np.where(tie, agree, -np.inf)))
     return LabelChoice(results[chosen], embeddings[chosen], chosen, names, swaps, costs,
-                       energy, time.perf_counter() - t0)
+                       energy, time.perf_counter() - t0, agree)
