@@ -124,3 +124,20 @@ def test_weighted_foreshortening_is_refined_one_pose_at_a_time():
                         refine_lbfgsb_batch(obj, X0, bounds, 4), strict=True):
         assert np.array_equal(b.x, refine_least_squares(obj, x0, bounds, 6).x)
         assert np.array_equal(c.x, refine(obj, x0, bounds, 4).x)
+
+
+def test_lockstep_lbfgsb_uses_the_pinned_scipys_routine_or_falls_back(monkeypatch):
+    # With the pinned scipy the lockstep path is the one taken (its private routine has
+    # the signature the driver expects); with another scipy whose routine differs, the
+    # poses are refined one by one by scipy's public L-BFGS-B, with the same results.
+    from gesture_pose.core.stick import batch
+
+    assert batch._setulb() is not None
+    rng = np.random.default_rng(9)
+    obj, truth = problem(rng, with_grid=False)
+    bounds = obj.model.bounds(np.zeros(3), 0.5)
+    X0 = np.clip(truth + rng.normal(scale=0.1, size=(2, truth.size)), *bounds.T)
+    monkeypatch.setattr(batch, "_setulb", lambda: None)
+    for x0, b in zip(X0, batch.refine_lbfgsb_batch(obj, X0, bounds, 4), strict=True):
+        s = refine(obj, x0, bounds, 4)
+        assert np.array_equal(b.x, s.x) and b.message == s.message
