@@ -24,46 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .capsules import axis_samples, pair_closest
-from .kinematics import N_ROOT_GENES, right_jacobian
+from .kinematics import N_ROOT_GENES
 from .objective import StickObjective, project_jacobian
 from .refine import PENETRATION_ROWS, RefineResult, refine, refine_least_squares
-
-
-def batch_jacobians(objective: StickObjective, X: np.ndarray, state: tuple[np.ndarray, ...]
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Jacobians of the posed heads and tails of ``K`` poses at once.
-
-    :meth:`.PoseModel.jacobian_at` with a leading batch axis: a gene turning bone ``b``
-    about the world axis ``w`` moves every point ``p`` below it by ``w x (p - head_b)``.
-
-    Args:
-        objective: Provides the pose model.
-        X: Gene vectors, shape ``(K, G)``.
-        state: The forward pass of ``X`` (:meth:`.PoseModel._forward`): heads, tails
-            ``(K, n, 3)``, frames ``(K, n, 3, 3)``, rotation vectors ``(K, E, 3)``.
-
-    Returns:
-        ``(J_heads (K, n, 3, G), J_tails (K, n, 3, G))``, world units per gene unit.
-    """
-    model = objective.model
-    heads, tails, frames, phi = state
-    K, G = X.shape
-    n = model.skeleton.n_bones
-    jr = right_jacobian(np.concatenate([phi, X[:, None, 3:6]], axis=1))  # root's last
-    w = frames[:, model._e_bone] @ jr[:, :-1] @ model._e_basis  # (K, E, 3, 3)
-    axes = np.swapaxes(w, -1, -2)[:, model._e_valid]  # (K, V, 3)
-    all_axes = np.concatenate([jr[:, -1], axes], axis=1)  # (K, A, 3)
-    all_bone, mask, onehot = model._jacobian_tables(G)
-    a = all_axes[:, :, None, :]
-    d = np.concatenate([heads, tails], axis=1)[:, None] - heads[:, all_bone][:, :, None]
-    mov = np.stack([a[..., 1] * d[..., 2] - a[..., 2] * d[..., 1],
-                    a[..., 2] * d[..., 0] - a[..., 0] * d[..., 2],
-                    a[..., 0] * d[..., 1] - a[..., 1] * d[..., 0]], -1)
-    mov *= mask[..., None]
-    J = (onehot @ mov.reshape(K, len(all_bone), -1)).reshape(K, G, 2 * n, 3)
-    J[:, :3] = np.eye(3)[:, None, :]
-    J = np.transpose(J, (0, 2, 3, 1))
-    return J[:, :n], J[:, n:]
 
 
 @dataclass
@@ -178,7 +141,7 @@ def evaluate_batch(objective: StickObjective, X: np.ndarray, collision: bool = T
         sel = np.asarray(sel, int)
         k = sel.size
         sub = tuple(s[sel] for s in state)
-        Jh, Jt = batch_jacobians(ob, X[sel], sub)
+        Jh, Jt = model.jacobians_at(X[sel], sub)
         Jj = np.where(at_tail[:, None, None], Jt[:, bones], Jh[:, bones])  # (k, J, 3, G)
         dq = np.einsum("kjcd,kjdg->kjcg", Jq[sel], Jj)
         uh_, n_ = uh[sel], n[sel]
@@ -613,7 +576,7 @@ def values_and_grads(objective: StickObjective, X: np.ndarray, collision: bool =
     X = np.asarray(X, float)
     state = objective.model._forward(X)
     heads, tails = state[0], state[1]
-    Jh, Jt = batch_jacobians(objective, X, state)
+    Jh, Jt = objective.model.jacobians_at(X, state)
     total, _, gh, gt = objective.energies(heads, tails, collision, grad=True)
     g = np.einsum("knd,kndg->kg", gh, Jh) + np.einsum("knd,kndg->kg", gt, Jt)
     if objective.weights.comfort > 0:

@@ -509,29 +509,46 @@ class PoseModel:
         Returns:
             ``(J_heads (n, 3, G), J_tails (n, 3, G))``.
         """
-        x = np.asarray(genes, float)
+        x = np.asarray(genes, float)[None]
+        Jh, Jt = self.jacobians_at(x, tuple(a[None] for a in state))
+        return Jh[0], Jt[0]
+
+    def jacobians_at(self, X: np.ndarray, state: tuple[np.ndarray, ...]
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        """Jacobians of the posed heads and tails of ``K`` gene vectors at once.
+
+        A gene turning bone ``b`` about the world axis ``w`` moves every point ``p``
+        below it by ``w x (p - head_b)``; the root's position genes move every point.
+
+        Args:
+            X: Gene vectors, shape ``(K, G)``.
+            state: Their forward pass (:meth:`_forward`): heads, tails ``(K, n, 3)``,
+                frames ``(K, n, 3, 3)``, rotation vectors ``(K, E, 3)``.
+
+        Returns:
+            ``(J_heads (K, n, 3, G), J_tails (K, n, 3, G))``, world units per gene unit.
+        """
         heads, tails, frames, phi = state
-        n, G = self.skeleton.n_bones, x.size
+        K, G = X.shape
+        n = self.skeleton.n_bones
         # World axis of every (bone, gene) entry, in group order.
-        e = self._e_bone
-        jr = right_jacobian(np.concatenate([phi, x[None, 3:6]]))  # the root's last
-        w = frames[e] @ jr[:-1] @ self._e_basis  # (E, 3, 3): columns = genes
-        axes = np.swapaxes(w, 1, 2)[self._e_valid]
+        jr = right_jacobian(np.concatenate([phi, X[:, None, 3:6]], axis=1))  # root's last
+        w = frames[:, self._e_bone] @ jr[:, :-1] @ self._e_basis  # (K, E, 3, 3): genes
+        axes = np.swapaxes(w, -1, -2)[:, self._e_valid]  # (K, V, 3)
         # Root: dG = [J_l e_k]_x G with J_l = J_r^T, so the axes are the rows of J_r.
-        all_axes = np.concatenate([jr[-1], axes])
+        all_axes = np.concatenate([jr[:, -1], axes], axis=1)  # (K, A, 3)
         all_bone, mask, onehot = self._jacobian_tables(G)
-        all_piv = heads[all_bone]
-        pts = np.concatenate([heads, tails])  # (2n, 3)
         # Moving ``p`` by a turn about ``w`` through ``c``: w x (p - c), all entries at once.
-        a, d = all_axes[:, None, :], pts[None] - all_piv[:, None, :]
+        a = all_axes[:, :, None, :]
+        d = np.concatenate([heads, tails], axis=1)[:, None] - heads[:, all_bone][:, :, None]
         mov = np.stack([a[..., 1] * d[..., 2] - a[..., 2] * d[..., 1],
                         a[..., 2] * d[..., 0] - a[..., 0] * d[..., 2],
                         a[..., 0] * d[..., 1] - a[..., 1] * d[..., 0]], -1)
         mov *= mask[..., None]
-        J = (onehot @ mov.reshape(len(all_bone), -1)).reshape(G, 2 * n, 3)
-        J[:3] = np.eye(3)[:, None, :]
-        J = np.transpose(J, (1, 2, 0))
-        return J[:n], J[n:]
+        J = (onehot @ mov.reshape(K, len(all_bone), -1)).reshape(K, G, 2 * n, 3)
+        J[:, :3] = np.eye(3)[:, None, :]
+        J = np.transpose(J, (0, 2, 3, 1))
+        return J[:, :n], J[:, n:]
 
     def _jacobian_tables(self, n_genes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Constants of :meth:`jacobian` (computed once per gene count).
