@@ -273,16 +273,11 @@ def _front_humanoid():
 def _preset_keys(arm, changed: str, untouched: str) -> None:
     """Keys the run must keep: ``changed`` keyed at OTHER_FRAME, ``untouched`` at both."""
     pb = arm.pose.bones[changed]
-    pb.keyframe_insert(rotation_channel_of(pb), frame=OTHER_FRAME)
+    pb.keyframe_insert(rotation_channel(pb.rotation_mode), frame=OTHER_FRAME)
     other = arm.pose.bones[untouched]
     for f in (OTHER_FRAME, FRAME):
-        other.keyframe_insert(rotation_channel_of(other), frame=f)
+        other.keyframe_insert(rotation_channel(other.rotation_mode), frame=f)
         other.keyframe_insert("location", frame=f)
-
-
-def rotation_channel_of(pb) -> str:
-    """The channel holding the pose bone's rotation in its mode."""
-    return rotation_channel(pb.rotation_mode)
 
 
 def test_flip_depth_refusals_change_nothing(registered, returned) -> None:
