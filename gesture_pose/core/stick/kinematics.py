@@ -537,35 +537,53 @@ class PoseModel:
         axes = np.swapaxes(w, -1, -2)[:, self._e_valid]  # (K, V, 3)
         # Root: dG = [J_l e_k]_x G with J_l = J_r^T, so the axes are the rows of J_r.
         all_axes = np.concatenate([jr[:, -1], axes], axis=1)  # (K, A, 3)
-        all_bone, mask, onehot = self._jacobian_tables(G)
-        # Moving ``p`` by a turn about ``w`` through ``c``: w x (p - c), all entries at once.
-        a = all_axes[:, :, None, :]
-        d = np.concatenate([heads, tails], axis=1)[:, None] - heads[:, all_bone][:, :, None]
+        entry, centre, point, ranks = self._jacobian_tables(G)
+        # Moving ``p`` by a turn about ``w`` through ``c``: w x (p - c), only for the
+        # (entry, point) pairs the entry moves (a third of them), summed per (gene, point)
+        # in entry order (as a product with the entries' one-hot gene matrix sums them).
+        a = all_axes[:, entry]
+        d = np.concatenate([heads, tails], axis=1)[:, point] - heads[:, centre]
         mov = np.stack([a[..., 1] * d[..., 2] - a[..., 2] * d[..., 1],
                         a[..., 2] * d[..., 0] - a[..., 0] * d[..., 2],
                         a[..., 0] * d[..., 1] - a[..., 1] * d[..., 0]], -1)
-        mov *= mask[..., None]
-        J = (onehot @ mov.reshape(K, len(all_bone), -1)).reshape(K, G, 2 * n, 3)
+        J = np.zeros((K, G * 2 * n, 3))
+        target, pairs = ranks[0]
+        J[:, target] = mov[:, pairs]
+        for target, pairs in ranks[1:]:
+            J[:, target] += mov[:, pairs]
+        J = J.reshape(K, G, 2 * n, 3)
         J[:, :3] = np.eye(3)[:, None, :]
         J = np.transpose(J, (0, 2, 3, 1))
         return J[:, :n], J[:, n:]
 
-    def _jacobian_tables(self, n_genes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Constants of :meth:`jacobian` (computed once per gene count).
+    def _jacobian_tables(self, n_genes: int) -> tuple[np.ndarray, ...]:
+        """Constants of :meth:`jacobians_at` (computed once per gene count).
+
+        The rotation-gene entries (the root's three first, then ``_gene_bone``'s) each
+        turn one bone and move the heads and tails below it; their moves are summed per
+        (gene, head or tail).
 
         Returns:
-            ``(bone (E,), moved (E, 2n) bool, onehot (G, E))`` per rotation-gene entry
-            (the root's three first): the bone it turns, the heads and tails it moves and
-            the gene it belongs to.
+            ``(entry, centre, point, ranks)``: per moved (entry, point) pair the entry
+            ``(M,)``, the bone it turns about ``(M,)`` and the point (a head ``i`` or the
+            tail ``n + i``, ``(M,)``); per rank ``k`` (the ``k``-th entry, ascending, of
+            a gene moving a point) the flat indices ``gene * 2n + point`` and the pairs.
         """
         if n_genes not in self._tables:
             r = self.figure.root_bone
+            n = self.skeleton.n_bones
             bone = np.concatenate([[r, r, r], self._gene_bone])
             gene = np.concatenate([[3, 4, 5], self._gene_index])
-            mask = np.tile(self._desc[bone], (1, 2))
-            onehot = np.zeros((n_genes, len(gene)))
-            onehot[gene, np.arange(len(gene))] = 1.0
-            self._tables[n_genes] = (bone, mask, onehot)
+            entry, point = np.nonzero(np.tile(self._desc[bone], (1, 2)))
+            flat = gene[entry] * 2 * n + point
+            order = np.argsort(flat, kind="stable")  # entries ascending per target
+            flat = flat[order]
+            first = np.r_[True, flat[1:] != flat[:-1]]
+            rank = np.arange(flat.size) - np.maximum.accumulate(
+                np.where(first, np.arange(flat.size), 0))
+            ranks = tuple((flat[rank == k], order[rank == k])
+                          for k in range(int(rank.max(initial=0)) + 1))
+            self._tables[n_genes] = (entry, bone[entry], point, ranks)
         return self._tables[n_genes]
 
     def to_pose(self, genes: np.ndarray) -> Pose:
