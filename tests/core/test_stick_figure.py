@@ -200,6 +200,13 @@ def test_rigid_fingers_are_posed_exactly_like_the_chain():
     assert np.array_equal(fig.joint_positions(h2, t2), fig.joint_positions(heads, tails))
     *_, Q = model.forward_rotations(x, rigid=False)
     assert np.array_equal(Q, model.local_rotations(x)[0])
+    # Only some bones' local rotations (the lifted bones'; the root's; a bone no gene
+    # turns): the same bits as those rows.
+    some = np.array([fig.groups[-1].bones[0], fig.root_bone, fingers[0],
+                     fig.groups[0].bones[0]])
+    *_, Qs = model.forward_rotations(x, rigid=False, bones=some)
+    assert Qs.shape == (len(x), len(some), 3, 3)
+    assert np.array_equal(Qs, Q[:, some])
     # What the rigid bones add to a weighted sum of midpoints (the centre of mass) follows
     # from their chain ancestors' frames alone.
     w = np.random.default_rng(3).random(sk.n_bones)

@@ -370,9 +370,28 @@ class PoseModel:
         # One exponential call for the group bones and the root's turn (the last row).
         return phi, fast_exp(np.concatenate([phi, x[:, None, 3:6]], axis=1))
 
-    def _rotations(self, E: np.ndarray) -> np.ndarray:
-        """Local rotations of every bone ``(P, n, 3, 3)`` from :meth:`_exponentials`' ``E``."""
+    def _rotations(self, E: np.ndarray, bones: np.ndarray | None = None) -> np.ndarray:
+        """Local rotations ``(P, n, 3, 3)`` from :meth:`_exponentials`' ``E``.
+
+        With ``bones`` ``(k,)``, only theirs ``(P, k, 3, 3)`` (the same products, the
+        same bits).
+        """
         base = self.base.rotations
+        if bones is not None:
+            bones = np.asarray(bones, int)
+            # The entry a bone takes its rotation from: its last (as the scatter below).
+            last = np.full(self.skeleton.n_bones, -1)
+            last[self._e_bone] = np.arange(self._e_bone.size)
+            ent = last[bones]
+            Q = np.broadcast_to(base[bones], (E.shape[0], bones.size, 3, 3)).copy()
+            on = np.flatnonzero(ent >= 0)
+            if on.size:
+                Q[:, on] = self._e_base[ent[on]] @ E[:, ent[on]]
+            root = np.flatnonzero(bones == self.figure.root_bone)
+            if root.size:
+                C = self._root_carry
+                Q[:, root] = (C.T @ E[:, -1] @ C @ base[self.figure.root_bone])[:, None]
+            return Q
         Q = np.broadcast_to(base, (E.shape[0],) + base.shape).copy()
         Q[:, self._e_bone] = self._e_base @ E[:, :-1]
         C = self._root_carry
@@ -398,25 +417,34 @@ class PoseModel:
         heads, tails, frames, _ = self._forward(genes, rigid=rigid)
         return heads, tails, frames
 
-    def forward_rotations(self, genes: np.ndarray, rigid: bool = True
+    def forward_rotations(self, genes: np.ndarray, rigid: bool = True,
+                          bones: np.ndarray | None = None
                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`forward` plus the local rotations ``(P, n, 3, 3)`` it computed.
+
+        Args:
+            genes: Gene vectors, shape ``(P, G)``.
+            rigid: As :meth:`forward`.
+            bones: Only these bones' local rotations, ``(P, k, 3, 3)`` (the same values
+                as those rows of every bone's), or None for every bone.
 
         Returns:
             ``(heads, tails, frames, Q)`` (:meth:`forward`, :meth:`local_rotations`).
         """
-        heads, tails, frames, _, Q = self._forward(genes, rotations=True, rigid=rigid)
+        heads, tails, frames, _, Q = self._forward(genes, rotations=True, rigid=rigid,
+                                                   bones=bones)
         return heads, tails, frames, Q
 
-    def _forward(self, genes: np.ndarray, rotations: bool = False, rigid: bool = True
-                 ) -> tuple[np.ndarray, ...]:
+    def _forward(self, genes: np.ndarray, rotations: bool = False, rigid: bool = True,
+                 bones: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
         """:meth:`forward` plus the group bones' rotation vectors ``(P, entries, 3)``.
 
         The chain bones (``_chain``) are posed level by level, each frame its parent's
         times a constant and, for a turned bone, times its exponential (see
         :meth:`_factored_levels`), then (``rigid``) the rigid ones (fingers below a hand),
         each its parent's frame times a constant. With ``rotations`` the local rotations
-        ``(P, n, 3, 3)`` follow as a fifth item.
+        ``(P, n, 3, 3)`` (of ``bones`` only, ``(P, k, 3, 3)``, when given) follow as a
+        fifth item.
         """
         sk = self.skeleton
         x = np.atleast_2d(genes)
@@ -470,7 +498,7 @@ class PoseModel:
             heads[:, ki] = heads[:, kp] + np.einsum("pnij,nj->pni", Fp, w)
         tails = heads + frames[..., 1] * sk.lengths[:, None]
         if rotations:
-            return heads, tails, frames, phi, self._rotations(E)
+            return heads, tails, frames, phi, self._rotations(E, bones)
         return heads, tails, frames, phi
 
     def jacobian(self, genes: np.ndarray) -> tuple[np.ndarray, ...]:

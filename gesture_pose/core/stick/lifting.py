@@ -199,7 +199,8 @@ def _lift(model: PoseModel, X: np.ndarray, bounds: np.ndarray, stick: StickFigur
     rays = camera.rays(stick.points[[j for _, _, j, _ in groups]])
     for tier in sorted(set(depth.values())):
         # Only the gene groups' bones are read: the fingers below a hand are not posed.
-        heads, _, frames, Q = model.forward_rotations(X, rigid=False)
+        tier_bones = [b for k, b in enumerate(bone_of) if depth[k] == tier]
+        heads, _, frames, Q = model.forward_rotations(X, rigid=False, bones=tier_bones)
         for k, (gi, start, _, length) in enumerate(groups):
             if depth[k] != tier:
                 continue
@@ -210,7 +211,8 @@ def _lift(model: PoseModel, X: np.ndarray, bounds: np.ndarray, stick: StickFigur
             target = _ray_sphere(o, d, heads[:, b], length, bits[:, k])
             # F_b = C Q0 E with E = exp(B g): the new E must turn y towards the target
             # expressed in C Q0 = F_b E^T.
-            E = np.swapaxes(model.base.rotations[b], 0, 1)[None] @ Q[:, b]
+            E = (np.swapaxes(model.base.rotations[b], 0, 1)[None] @
+                 Q[:, tier_bones.index(b)])
             base = frames[:, b] @ np.swapaxes(E, 1, 2)
             want = np.einsum("pji,pj->pi", base, target - heads[:, b])
             B = grp.bases[0]
