@@ -12,7 +12,12 @@ import pytest
 from gesture_pose.core.exceptions import InputError
 from gesture_pose.core.skeleton import Pose, Skeleton
 from gesture_pose.core.stick.figure import bone_side, find_humanoid_bones, humanoid_figure
-from gesture_pose.core.stick.kinematics import PoseModel, right_jacobian
+from gesture_pose.core.stick.kinematics import (
+    CONTRACT_ROWS,
+    PoseModel,
+    _frames_times,
+    right_jacobian,
+)
 from tests.core.fixtures import chain_skeleton, frame_along
 
 
@@ -217,6 +222,17 @@ def test_rigid_fingers_are_posed_exactly_like_the_chain():
     got = np.einsum("a,pad->pd", W, h2[:, anchors]) + np.einsum("paij,aj->pi",
                                                                 f2[:, anchors], v)
     assert np.allclose(got, want, atol=1e-13)
+
+
+def test_frames_times_vectors_is_the_einsum_bit_for_bit():
+    """The forward pass' frames-times-vectors, summed by hand on populations: einsum's bits."""
+    rng = np.random.default_rng(4)
+    for rows in (1, CONTRACT_ROWS - 1, CONTRACT_ROWS, 1024):
+        for k in (1, 2, 3):
+            frames = rng.normal(size=(rows, 7, 3, 3))[:, [4, 1, 6][:k]]  # a gathered copy
+            w = rng.normal(size=(k, 3))
+            assert np.array_equal(_frames_times(frames, w),
+                                  np.einsum("pnij,nj->pni", frames, w))
 
 
 def test_right_jacobian_against_finite_differences():

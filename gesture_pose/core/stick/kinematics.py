@@ -51,6 +51,23 @@ def _coefficients(phi: np.ndarray, third: bool = True):
     return t2, s, c, d
 
 
+#: Rows from which :func:`_frames_times` sums its three terms itself (fewer: one einsum).
+CONTRACT_ROWS = 128
+
+
+def _frames_times(F: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``einsum("pnij,nj->pni", F, w)``: frames ``(P, k, 3, 3)`` times vectors ``(k, 3)``.
+
+    On a population (:data:`CONTRACT_ROWS` rows or more) the three products are summed
+    as ``(F_0 w_0 + F_2 w_2) + F_1 w_1``, the association numpy's ``einsum`` uses for
+    this contraction (its two-lane accumulation; checked bit for bit on the forward
+    pass), about twice as fast; fewer rows take the one ``einsum`` call.
+    """
+    if len(F) < CONTRACT_ROWS:
+        return np.einsum("pnij,nj->pni", F, w)
+    return (F[..., 0] * w[:, None, 0] + F[..., 2] * w[:, None, 2]) + F[..., 1] * w[:, None, 1]
+
+
 def _identity_skew_outer(phi: np.ndarray, alpha: np.ndarray, beta: np.ndarray,
                          gamma: np.ndarray) -> np.ndarray:
     """``alpha I + beta K + gamma phi phi^T`` (``K`` the cross-product matrix of ``phi``).
@@ -486,7 +503,7 @@ class PoseModel:
                 if at >= 0:
                     T[:, at] = T[:, at] @ turn
                 frames[:, ci] = T
-                heads[:, ci] = heads[:, cp] + np.einsum("pnij,nj->pni", Fp, w)
+                heads[:, ci] = heads[:, cp] + _frames_times(Fp, w)
                 if at >= 0:
                     p = cp[at]
                     rel = (sk.rest_heads[r] - sk.rest_heads[p]) + off_r
@@ -495,7 +512,7 @@ class PoseModel:
         for ki, kp, K, w in self._rigid if rigid else ():
             Fp = frames[:, kp]
             frames[:, ki] = Fp @ K
-            heads[:, ki] = heads[:, kp] + np.einsum("pnij,nj->pni", Fp, w)
+            heads[:, ki] = heads[:, kp] + _frames_times(Fp, w)
         tails = heads + frames[..., 1] * sk.lengths[:, None]
         if rotations:
             return heads, tails, frames, phi, self._rotations(E, bones)
