@@ -12,12 +12,7 @@ import pytest
 from gesture_pose.core.exceptions import InputError
 from gesture_pose.core.skeleton import Pose, Skeleton
 from gesture_pose.core.stick.figure import bone_side, find_humanoid_bones, humanoid_figure
-from gesture_pose.core.stick.kinematics import (
-    CONTRACT_ROWS,
-    PoseModel,
-    _frames_times,
-    right_jacobian,
-)
+from gesture_pose.core.stick.kinematics import PoseModel, _frames_times, right_jacobian
 from tests.core.fixtures import chain_skeleton, frame_along
 
 
@@ -224,15 +219,16 @@ def test_rigid_fingers_are_posed_exactly_like_the_chain():
     assert np.allclose(got, want, atol=1e-13)
 
 
-def test_frames_times_vectors_is_the_einsum_bit_for_bit():
-    """The forward pass' frames-times-vectors, summed by hand on populations: einsum's bits."""
+def test_frames_times_vectors_row_by_row():
+    """The forward pass' frames times vectors: the product, each row the same bits alone."""
     rng = np.random.default_rng(4)
-    for rows in (1, CONTRACT_ROWS - 1, CONTRACT_ROWS, 1024):
-        for k in (1, 2, 3):
-            frames = rng.normal(size=(rows, 7, 3, 3))[:, [4, 1, 6][:k]]  # a gathered copy
-            w = rng.normal(size=(k, 3))
-            assert np.array_equal(_frames_times(frames, w),
-                                  np.einsum("pnij,nj->pni", frames, w))
+    for k in (1, 2, 3):
+        frames = rng.normal(size=(300, 7, 3, 3))[:, [4, 1, 6][:k]]  # a gathered copy
+        w = rng.normal(size=(k, 3))
+        got = _frames_times(frames, w)
+        assert np.allclose(got, np.einsum("pnij,nj->pni", frames, w), rtol=0, atol=1e-14)
+        for rows in (slice(0, 1), slice(7, 70), slice(64, 300)):
+            assert np.array_equal(_frames_times(frames[rows], w), got[rows])
 
 
 def test_right_jacobian_against_finite_differences():

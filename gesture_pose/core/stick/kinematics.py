@@ -51,20 +51,15 @@ def _coefficients(phi: np.ndarray, third: bool = True):
     return t2, s, c, d
 
 
-#: Rows from which :func:`_frames_times` sums its three terms itself (fewer: one einsum).
-CONTRACT_ROWS = 128
-
-
 def _frames_times(F: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """``einsum("pnij,nj->pni", F, w)``: frames ``(P, k, 3, 3)`` times vectors ``(k, 3)``.
+    """Frames ``(P, k, 3, 3)`` times vectors ``(k, 3)``: ``(P, k, 3)``.
 
-    On a population (:data:`CONTRACT_ROWS` rows or more) the three products are summed
-    as ``(F_0 w_0 + F_2 w_2) + F_1 w_1``, the association numpy's ``einsum`` uses for
-    this contraction (its two-lane accumulation; checked bit for bit on the forward
-    pass), about twice as fast; fewer rows take the one ``einsum`` call.
+    The three products summed as ``(F_0 w_0 + F_2 w_2) + F_1 w_1``, elementwise: every
+    row gets the same arithmetic whatever the row count (so two row chunks give one
+    call's bits). It is also the association numpy's ``einsum("pnij,nj->pni")`` uses
+    here (its two-lane accumulation), which the forward pass called before: the same
+    poses to the bit on this machine, twice as fast on a population.
     """
-    if len(F) < CONTRACT_ROWS:
-        return np.einsum("pnij,nj->pni", F, w)
     return (F[..., 0] * w[:, None, 0] + F[..., 2] * w[:, None, 2]) + F[..., 1] * w[:, None, 1]
 
 
