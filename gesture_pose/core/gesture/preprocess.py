@@ -101,8 +101,9 @@ class Drawing:
     def lookup_xy(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`lookup` with the coordinates apart.
 
-        Points outside the field read a sentinel cell past the field's end (distance
-        ``inf``, the owner of the last cell), so one gather serves every point.
+        Points outside the field read a sentinel cell of a border one cell wide around the
+        field (distance ``inf``, the owner of the field's last cell): cell indices are
+        clipped to the border, so one gather serves every point.
 
         Args:
             x: Pixel x coordinates, any shape.
@@ -112,19 +113,42 @@ class Drawing:
             ``(distance, sample)`` as :meth:`lookup`, shaped like ``x``.
         """
         h, w = self.field_dist.shape
-        ix = np.floor((x - self.field_origin[0]) / self.field_cell + 0.5).astype(np.int64)
-        iy = np.floor((y - self.field_origin[1]) / self.field_cell + 0.5).astype(np.int64)
-        inside = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
-        flat = np.where(inside, iy * w + ix, h * w)
-        dist, owner = self._flat_field
-        return dist[flat], owner[flat]
+        ix = self._cell(x, 0, w)
+        iy = self._cell(y, 1, h)
+        # Row-major index into the bordered (h + 2, w + 2) field: (iy + 1)(w + 2) + ix + 1.
+        iy *= w + 2
+        iy += ix
+        iy += w + 3
+        dist, owner = self._bordered_field
+        return dist[iy], owner[iy]
+
+    def _cell(self, coord: np.ndarray, axis: int, size: int) -> np.ndarray:
+        """Nearest field cell of pixel coordinates along ``axis``, clipped to ``[-1, size]``.
+
+        ``floor((coord - origin) / cell + 0.5)`` computed in place; -1 and ``size`` are the
+        border (a NaN or an overflow casts to the smallest integer, the border too).
+        """
+        f = np.subtract(coord, self.field_origin[axis], out=np.empty(np.shape(coord)))
+        f /= self.field_cell
+        f += 0.5
+        np.floor(f, out=f)
+        i = f.astype(np.int64)
+        return np.clip(i, -1, size, out=i)
 
     @cached_property
-    def _flat_field(self) -> tuple[np.ndarray, np.ndarray]:
-        """The distance field and its owners flattened, a sentinel cell appended."""
-        dist = np.append(self.field_dist.ravel(), np.inf)
-        owner = self.field_owner.ravel()
-        return dist, np.append(owner, owner[-1])
+    def _bordered_field(self) -> tuple[np.ndarray, np.ndarray]:
+        """The distance field and its owners with a sentinel border, flattened.
+
+        The border (one cell around the field) has distance ``inf`` and the owner of the
+        field's last cell.
+        """
+        h, w = self.field_dist.shape
+        dist = np.full((h + 2, w + 2), np.inf)
+        dist[1:-1, 1:-1] = self.field_dist
+        owner = np.full((h + 2, w + 2), self.field_owner.ravel()[-1],
+                        dtype=self.field_owner.dtype)
+        owner[1:-1, 1:-1] = self.field_owner
+        return dist.ravel(), owner.ravel()
 
     def stroke_samples(self, k: int) -> np.ndarray:
         """Samples of stroke ``k``, shape ``(n_k, 2)``."""
