@@ -282,59 +282,132 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     """
     params = params or CostParams()
     pa, pb = np.asarray(pa, float).reshape(-1, 2), np.asarray(pb, float).reshape(-1, 2)
-    ra = np.broadcast_to(np.asarray(ra, float), (len(pa),))
-    rb = np.broadcast_to(np.asarray(rb, float), (len(pb),))
+    ka, kb = len(pa), len(pb)
+    ra = np.broadcast_to(np.asarray(ra, float), (ka,))
+    rb = np.broadcast_to(np.asarray(rb, float), (kb,))
+    ga, sa = np.broadcast_to(ga, (ka,)), np.broadcast_to(sa, (ka,))
+    gb, sb = np.broadcast_to(gb, (kb,)), np.broadcast_to(sb, (kb,))
     eps = drawing.epsilon
     d = pb[None, :, :] - pa[:, None, :]
     dist = np.linalg.norm(d, axis=2)
-    u = d / np.maximum(dist, 1e-9)[..., None]
     sigma = params.sigma_length * drawing.diagonal
     cl = length_cost(dist, length, sigma, free, nearest,
                      max(sigma, params.foreshortening * length), params.foreshortening_from)
-    # Coordinates apart, (Ka, Kb, stations) each: numpy is slow on a last axis of 2.
-    ux, uy = u[..., 0, None], u[..., 1, None]
-    dx, dy = d[..., 0, None], d[..., 1, None]
-    pax, pay = pa[:, None, None, 0], pa[:, None, None, 1]
-    nx, ny = drawing.normals[:, 0], drawing.normals[:, 1]
-    t = (np.arange(stations) + 0.5) / stations
+    out = np.ones((ka, kb))
+    # E = 1 - (1 - Cl)(...)(...) is exactly 1 where Cl is (a length far off): only the
+    # other pairs ("live", flat indices) need the conformity and consistency terms, which
+    # are computed on them alone, element by element as on the whole table.
+    live = np.flatnonzero(cl != 1.0)
+    if live.size == 0:
+        return out
+    ia, ib = np.divmod(live, kb)
+    dist_l = dist.ravel()[live]
+    d_l = d.reshape(-1, 2)[live]
+    u = d_l / np.maximum(dist_l, 1e-9)[:, None]
     weight = 1.0
     if params.exposed_conformity:
-        weight = exposed_weight(dist, length, ra, rb, params.exposed_from * sigma)
-    ax, ay = pax + t * dx, pay + t * dy
-    r_t = (1.0 - t)[None, None, :] * ra[:, None, None] + t[None, None, :] * rb[None, :, None]
+        weight = exposed_weight(dist, length, ra, rb, params.exposed_from * sigma).ravel()[live]
+    cover = _conformity(drawing, pa[ia], ra[ia], rb[ib], d_l, u, stations, params, blocked)
+    ccf = weight * (1.0 - 0.5 * (cover[0] + cover[1]))
+    scale = (1.0 - cl.ravel()[live]) * (1.0 - ccf)
+    opposite = (ga[ia] == gb[ib]) & (ga[ia] >= 0) & (sa[ia] * sb[ib] < 0)
+    cc = opposite.astype(float)
+    # Cc matters where the rest of E is not 0 and the pair is not already inconsistent
+    # (opposite sides of one contour); the crossing test needs room on the axis and a
+    # contour of an end joint (none for two grid placements).
+    test = (scale != 0.0) & ~opposite & ((ga[ia] >= 0) | (gb[ib] >= 0))
+    if params.crossing_room:
+        test &= crossing_room(np.maximum(dist, length), ra, rb, eps).ravel()[live]
+    tested = np.flatnonzero(test)
+    cc[tested[_crossed(drawing, pa[ia[tested]], ra[ia[tested]], rb[ib[tested]],
+                       ga[ia[tested]], gb[ib[tested]], d_l[tested], dist_l[tested],
+                       u[tested], params)]] = 1.0
+    out.ravel()[live] = 1.0 - scale * (1.0 - params.w_consistency * cc)
+    return out
+
+
+def _conformity(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, rb: np.ndarray,
+                d: np.ndarray, u: np.ndarray, stations: int, params: CostParams,
+                blocked: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Conforming fraction of each outline of ``L`` bones (:func:`pair_cost`'s ``Ccf``).
+
+    Args:
+        drawing: The preprocessed drawing.
+        pa: Head positions, pixels, ``(L, 2)``.
+        ra: Head radii, pixels, ``(L,)``.
+        rb: Tail radii, pixels, ``(L,)``.
+        d: Bone vectors (tail less head), pixels, ``(L, 2)``.
+        u: Their unit directions, ``(L, 2)``.
+        stations: Samples along the bone per outline.
+        params: Cost parameters.
+        blocked: Contour samples that do not count, ``(N,)`` bool, or None.
+
+    Returns:
+        ``(left, right)`` fractions of conforming stations, each ``(L,)``.
+    """
+    eps = drawing.epsilon
+    ux, uy = u[:, 0, None], u[:, 1, None]
+    nx, ny = drawing.normals[:, 0], drawing.normals[:, 1]
+    t = (np.arange(stations) + 0.5) / stations
+    ax, ay = pa[:, 0, None] + t * d[:, 0, None], pa[:, 1, None] + t * d[:, 1, None]
+    r_t = (1.0 - t)[None, :] * ra[:, None] + t[None, :] * rb[:, None]
     tol = np.maximum(eps, 0.5 * r_t)
     sin_max = np.sin(params.conform_angle)
+    # The outlines at +-r_t across the axis: ax -+ r_t uy, ay +- r_t ux (exactly the
+    # products with a signed r_t).
+    wx, wy = r_t * uy, r_t * ux
     cover = []
-    for sign in (1.0, -1.0):
-        off = sign * r_t
-        dq, owner = drawing.lookup_xy(ax + off * -uy, ay + off * ux)
-        along = np.abs(nx[owner] * ux + ny[owner] * uy)
-        ok = (dq <= tol) & (along < sin_max)
+    for x, y in ((ax - wx, ay + wy), (ax + wx, ay - wy)):
+        dq, owner = drawing.lookup_xy(x, y)
+        near = np.flatnonzero(dq <= tol)
+        o, row = owner.ravel()[near], near // stations
+        ok = np.abs(nx[o] * ux[row, 0] + ny[o] * uy[row, 0]) < sin_max
         if blocked is not None:
-            ok &= ~blocked[owner]
-        cover.append(np.count_nonzero(ok, axis=2) / stations)
-    ccf = weight * (1.0 - 0.5 * (cover[0] + cover[1]))
-    ta = crossing_stations(dist, ra, rb, eps)
-    qx, qy = pax + ta * dx, pay + ta * dy
+            ok &= ~blocked[o]
+        cover.append(np.bincount(row[ok], minlength=len(u)) / stations)
+    return cover[0], cover[1]
+
+
+def _crossed(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, rb: np.ndarray,
+             ga: np.ndarray, gb: np.ndarray, d: np.ndarray, dist: np.ndarray, u: np.ndarray,
+             params: CostParams) -> np.ndarray:
+    """Bones whose axis crosses a contour of an end joint (:func:`pair_cost`'s ``Cc``).
+
+    Args:
+        drawing: The preprocessed drawing.
+        pa: Head positions, pixels, ``(L, 2)``.
+        ra: Head radii, pixels, ``(L,)``.
+        rb: Tail radii, pixels, ``(L,)``.
+        ga: Head contour groups, ``(L,)``.
+        gb: Tail contour groups, ``(L,)``.
+        d: Bone vectors, pixels, ``(L, 2)``.
+        dist: Their lengths, pixels, ``(L,)``.
+        u: Their unit directions, ``(L, 2)``.
+        params: Cost parameters.
+
+    Returns:
+        ``(L,)`` bool.
+    """
+    eps = drawing.epsilon
+    ta = _axis_stations(dist, ra, rb, eps)
+    qx, qy = pa[:, 0, None] + ta * d[:, 0, None], pa[:, 1, None] + ta * d[:, 1, None]
     dq, owner = drawing.lookup_xy(qx, qy)
-    grp = drawing.group[owner]
-    own = (grp == ga[:, None, None]) | (grp == gb[None, :, None])
-    crossed = (dq < 0.5 * eps) & own
+    near = np.flatnonzero(dq < 0.5 * eps)
+    o, row = owner.ravel()[near], near // ta.shape[1]
+    grp = drawing.group[o]
+    keep = (grp == ga[row]) | (grp == gb[row])
+    near, o, row = near[keep], o[keep], row[keep]
     if params.transverse_crossings:
         # The contour must run across the axis: its tangent line at the nearest sample
         # meets the axis within a step of the station. An outline running along the axis
         # (a part thinner than a step, such as a hand seen edge-on) is near but not crossed.
-        mx, my = nx[owner], ny[owner]
-        pts = drawing.points[owner]
-        off = np.abs((qx - pts[..., 0]) * mx + (qy - pts[..., 1]) * my)
-        crossed &= off < eps * np.abs(mx * ux + my * uy)
-    cc = crossed.any(axis=2).astype(float)
-    if params.crossing_room:
-        cc *= crossing_room(np.maximum(dist, length), ra, rb, eps)
-    same = (ga[:, None] == gb[None, :]) & (ga[:, None] >= 0)
-    opposite = same & (sa[:, None] * sb[None, :] < 0)
-    cc = np.maximum(cc, opposite.astype(float))
-    return 1.0 - (1.0 - cl) * (1.0 - ccf) * (1.0 - params.w_consistency * cc)
+        mx, my = drawing.normals[o, 0], drawing.normals[o, 1]
+        pts = drawing.points[o]
+        off = np.abs((qx.ravel()[near] - pts[:, 0]) * mx + (qy.ravel()[near] - pts[:, 1]) * my)
+        row = row[off < eps * np.abs(mx * u[row, 0] + my * u[row, 1])]
+    out = np.zeros(len(u), bool)
+    out[row] = True
+    return out
 
 
 def exposed_weight(dist: np.ndarray, length: float, ra: np.ndarray, rb: np.ndarray,
@@ -431,9 +504,19 @@ def crossing_stations(dist: np.ndarray, ra: np.ndarray, rb: np.ndarray, eps: flo
         of their overlap (:func:`crossing_room` leaves it out of the test unless its
         expected length has room).
     """
+    return _axis_stations(dist, ra[:, None], rb[None, :], eps, count)
+
+
+def _axis_stations(dist: np.ndarray, ra: np.ndarray, rb: np.ndarray, eps: float,
+                   count: int = 9) -> np.ndarray:
+    """:func:`crossing_stations` element by element: ``dist``, ``ra``, ``rb`` broadcast.
+
+    Returns:
+        Parameters, the broadcast shape with a last axis of ``count``.
+    """
     length = np.maximum(dist, 1e-9)
-    lo = np.clip((ra[:, None] + eps) / length, 0.1, 0.9)
-    hi = np.clip(1.0 - (rb[None, :] + eps) / length, 0.1, 0.9)
+    lo = np.clip((ra + eps) / length, 0.1, 0.9)
+    hi = np.clip(1.0 - (rb + eps) / length, 0.1, 0.9)
     short = hi < lo  # no room between the circles: the middle of the gap between them
     mid = 0.5 * (lo + hi)
     lo, hi = np.where(short, mid, lo), np.where(short, mid, hi)
