@@ -22,6 +22,7 @@ continuous refinement (moved joints) share them.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -120,6 +121,29 @@ class CostParams:
     exposed_from: float = 1.5
 
 
+@lru_cache(maxsize=8)
+def _unit_circle(m: int) -> np.ndarray:
+    """``m`` unit vectors at even angles from 0, ``(m, 2)``, read-only (computed once)."""
+    ang = np.linspace(0.0, 2 * np.pi, m, endpoint=False)
+    u = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    u.flags.writeable = False
+    return u
+
+
+@lru_cache(maxsize=8)
+def _unit_steps(count: int) -> np.ndarray:
+    """``count`` even parameters from 0 to 1, ``(count,)``, read-only (computed once)."""
+    s = np.linspace(0.0, 1.0, count)
+    s.flags.writeable = False
+    return s
+
+
+def _rows(x, k: int, dtype=None) -> np.ndarray:
+    """``x`` as an array of ``k`` rows: itself when it has them, else broadcast."""
+    x = np.asarray(x, dtype)
+    return x if x.shape == (k,) else np.broadcast_to(x, (k,))
+
+
 def circle_alignment(drawing: Drawing, centres: np.ndarray, radii: np.ndarray,
                      params: CostParams | None = None) -> np.ndarray:
     """Aligned contour sample of every circle sample, or -1.
@@ -138,9 +162,7 @@ def circle_alignment(drawing: Drawing, centres: np.ndarray, radii: np.ndarray,
         Sample indices, shape ``(K, M)`` int, -1 where nothing aligns.
     """
     params = params or CostParams()
-    m = params.circle_samples
-    ang = np.linspace(0.0, 2 * np.pi, m, endpoint=False)
-    u = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    u = _unit_circle(params.circle_samples)
     centres = np.asarray(centres, float).reshape(-1, 2)
     radii = np.broadcast_to(np.asarray(radii, float), (len(centres),))
     tol = np.minimum(drawing.epsilon, radii / 2.0)
@@ -185,10 +207,10 @@ def unary_from_aligned(aligned: np.ndarray, terminal: bool, params: CostParams |
     ok = aligned >= 0
     if blocked is not None:
         ok &= ~blocked[np.maximum(aligned, 0)]
-    frac = ok.mean(axis=1)
+    frac = np.count_nonzero(ok, axis=1) / ok.shape[1]  # the mean, exactly (0/1 sums)
     a = params.alpha
     f_ref = (np.pi + 2 * a) / (2 * np.pi) if terminal else 2 * a / np.pi
-    cost = 1.0 - np.clip(frac / f_ref, 0.0, 1.0)
+    cost = 1.0 - np.minimum(np.maximum(frac / f_ref, 0.0), 1.0)
     if terminal:
         cost = np.where(frac < params.terminal_min_fraction, 1.0, cost)
     return cost
@@ -283,10 +305,8 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     params = params or CostParams()
     pa, pb = np.asarray(pa, float).reshape(-1, 2), np.asarray(pb, float).reshape(-1, 2)
     ka, kb = len(pa), len(pb)
-    ra = np.broadcast_to(np.asarray(ra, float), (ka,))
-    rb = np.broadcast_to(np.asarray(rb, float), (kb,))
-    ga, sa = np.broadcast_to(ga, (ka,)), np.broadcast_to(sa, (ka,))
-    gb, sb = np.broadcast_to(gb, (kb,)), np.broadcast_to(sb, (kb,))
+    ra, rb = _rows(ra, ka, float), _rows(rb, kb, float)
+    ga, sa, gb, sb = _rows(ga, ka), _rows(sa, ka), _rows(gb, kb), _rows(sb, kb)
     eps = drawing.epsilon
     d = pb[None, :, :] - pa[:, None, :]
     dist = np.linalg.norm(d, axis=2)
@@ -515,13 +535,13 @@ def _axis_stations(dist: np.ndarray, ra: np.ndarray, rb: np.ndarray, eps: float,
         Parameters, the broadcast shape with a last axis of ``count``.
     """
     length = np.maximum(dist, 1e-9)
-    lo = np.clip((ra + eps) / length, 0.1, 0.9)
-    hi = np.clip(1.0 - (rb + eps) / length, 0.1, 0.9)
+    # np.clip's values with two ufunc calls each (clip's wrapper costs more on small tables).
+    lo = np.minimum(np.maximum((ra + eps) / length, 0.1), 0.9)
+    hi = np.minimum(np.maximum(1.0 - (rb + eps) / length, 0.1), 0.9)
     short = hi < lo  # no room between the circles: the middle of the gap between them
     mid = 0.5 * (lo + hi)
     lo, hi = np.where(short, mid, lo), np.where(short, mid, hi)
-    s = np.linspace(0.0, 1.0, count)
-    return lo[..., None] + (hi - lo)[..., None] * s
+    return lo[..., None] + (hi - lo)[..., None] * _unit_steps(count)
 
 
 def bone_frame(drawing: Drawing, pa: np.ndarray, pb: np.ndarray, idx: np.ndarray):
@@ -616,6 +636,6 @@ def triplet_cost(pa: np.ndarray, pb: np.ndarray, pc: np.ndarray, shared: np.ndar
     n1 = np.linalg.norm(d1, axis=2)
     n2 = np.linalg.norm(d2, axis=2)
     cos = np.einsum("abd,bcd->abc", d1, d2) / np.maximum(n1[:, :, None] * n2[None], 1e-9)
-    ang = np.arccos(np.clip(cos, -1.0, 1.0))
+    ang = np.arccos(np.minimum(np.maximum(cos, -1.0), 1.0))
     sigma = np.where(shared, params.sigma_angle_shared, params.sigma_angle)
     return 1.0 - np.exp(-((ang - rest_angle) ** 2) / (2.0 * sigma**2))

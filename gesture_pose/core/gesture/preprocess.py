@@ -133,7 +133,8 @@ class Drawing:
         f += 0.5
         np.floor(f, out=f)
         i = f.astype(np.int64)
-        return np.clip(i, -1, size, out=i)
+        np.maximum(i, -1, out=i)
+        return np.minimum(i, size, out=i)
 
     @cached_property
     def _bordered_field(self) -> tuple[np.ndarray, np.ndarray]:
