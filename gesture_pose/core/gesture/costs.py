@@ -241,10 +241,26 @@ def length_cost(dist: np.ndarray, length: float, sigma: float,
     Returns:
         ``Cl`` in ``[0, 1)``, the shape of ``dist``.
     """
+    lo, hi, lenient = _length_range(length, free, nearest)
+    return _length_term(np.asarray(dist, float), lo, hi, lenient, sigma, short_sigma, knee)
+
+
+def _length_range(length: float, free: tuple[float, float] | None,
+                  nearest: float | None) -> tuple[float, float, float]:
+    """:func:`length_cost`'s free range ``(lo, hi)`` and its lenient stretch above it."""
     lo = hi = float(length)
     if free is not None:
         lo, hi = min(lo, float(free[0])), max(hi, float(free[1]))
-    dist = np.asarray(dist, float)
+    return lo, hi, 0.0 if nearest is None else max(float(nearest) - hi, 0.0)
+
+
+def _length_term(dist: np.ndarray, lo, hi, lenient, sigma: float, short_sigma, knee: float
+                 ) -> np.ndarray:
+    """:func:`length_cost` element by element.
+
+    ``lo``, ``hi``, ``lenient`` and ``short_sigma`` are scalars or arrays broadcast with
+    ``dist``.
+    """
     deficit = np.maximum(lo - dist, 0.0)
     if short_sigma is None:
         short = deficit / sigma
@@ -252,7 +268,6 @@ def length_cost(dist: np.ndarray, length: float, sigma: float,
         near = np.minimum(deficit, knee * sigma)
         short = near / sigma + (deficit - near) / short_sigma
     over = np.maximum(dist - hi, 0.0)
-    lenient = 0.0 if nearest is None else max(float(nearest) - hi, 0.0)
     near = np.minimum(over, lenient)
     over = (near + 3.0 * (over - near)) / sigma
     return 1.0 - np.exp(-0.5 * (short + over) ** 2)
@@ -307,7 +322,6 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     ka, kb = len(pa), len(pb)
     ra, rb = _rows(ra, ka, float), _rows(rb, kb, float)
     ga, sa, gb, sb = _rows(ga, ka), _rows(sa, ka), _rows(gb, kb), _rows(sb, kb)
-    eps = drawing.epsilon
     d = pb[None, :, :] - pa[:, None, :]
     dist = np.linalg.norm(d, axis=2)
     sigma = params.sigma_length * drawing.diagonal
@@ -321,29 +335,132 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     if live.size == 0:
         return out
     ia, ib = np.divmod(live, kb)
-    dist_l = dist.ravel()[live]
-    d_l = d.reshape(-1, 2)[live]
-    u = d_l / np.maximum(dist_l, 1e-9)[:, None]
+    out.ravel()[live] = _live_costs(drawing, pa[ia], ra[ia], ga[ia], sa[ia], rb[ib], gb[ib],
+                                    sb[ib], d.reshape(-1, 2)[live], dist.ravel()[live],
+                                    cl.ravel()[live], length, params, stations, blocked)
+    return out
+
+
+def bone_costs(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
+               sa: np.ndarray, pb: np.ndarray, rb: np.ndarray, gb: np.ndarray, sb: np.ndarray,
+               length: np.ndarray, params: CostParams | None = None, stations: int = 8,
+               blocked: np.ndarray | None = None, free: list | None = None,
+               nearest: list | None = None) -> np.ndarray:
+    """:func:`pair_cost` of ``L`` bones at one placement pair each, in one call, ``(L,)``.
+
+    Row ``i`` is ``pair_cost`` of the head ``pa[i]`` and the tail ``pb[i]`` with that bone's
+    ``length[i]``, ``free[i]``, ``nearest[i]`` and ``blocked[i]``: the same value, element
+    by element, for many bones (or placements) at once.
+
+    Args:
+        drawing: The preprocessed drawing.
+        pa: Head positions, pixels, ``(L, 2)``.
+        ra: Their radii, pixels, ``(L,)``.
+        ga: Their contour groups (-1 for grid), ``(L,)``.
+        sa: Their contour sides, ``(L,)``.
+        pb: Tail positions, pixels, ``(L, 2)``.
+        rb: Their radii, pixels, ``(L,)``.
+        gb: Their contour groups, ``(L,)``.
+        sb: Their contour sides, ``(L,)``.
+        length: Expected drawn lengths, pixels, ``(L,)``.
+        params: Cost parameters.
+        stations: Samples along the bone per outline.
+        blocked: Contour samples that do not count for each row's conformity, ``(L, N)``
+            bool, or None.
+        free: Each row's free lengths ``(shortest, longest)`` or None; None: none for all.
+        nearest: Each row's length at its nearest depth or None; None: none for all.
+
+    Returns:
+        Costs, ``(L,)``.
+    """
+    params = params or CostParams()
+    pa, pb = np.asarray(pa, float).reshape(-1, 2), np.asarray(pb, float).reshape(-1, 2)
+    n = len(pa)
+    length = np.asarray(length, float)
+    free = [None] * n if free is None else free
+    nearest = [None] * n if nearest is None else nearest
+    sigma = params.sigma_length * drawing.diagonal
+    lo, hi, lenient = np.array([_length_range(*row) for row in
+                                zip(length, free, nearest, strict=True)]).reshape(-1, 3).T
+    short = np.array([max(sigma, params.foreshortening * x) for x in length])
+    d = pb - pa
+    dist = np.linalg.norm(d, axis=1)
+    cl = _length_term(dist, lo, hi, lenient, sigma, short, params.foreshortening_from)
+    out = np.ones(n)
+    live = np.flatnonzero(cl != 1.0)
+    if live.size:
+        ga, sa, gb, sb = (np.asarray(x)[live] for x in (ga, sa, gb, sb))
+        out[live] = _live_costs(drawing, pa[live], np.asarray(ra, float)[live], ga, sa,
+                                np.asarray(rb, float)[live], gb, sb, d[live], dist[live],
+                                cl[live], length[live], params, stations,
+                                None if blocked is None else blocked[live])
+    return out
+
+
+def pair_rows(pa: np.ndarray, ra: np.ndarray, ga: np.ndarray, sa: np.ndarray,
+              pb: np.ndarray, rb: np.ndarray, gb: np.ndarray, sb: np.ndarray) -> tuple:
+    """The ``Ka x Kb`` placement pairs of a :func:`pair_cost` table as rows (row-major).
+
+    Returns:
+        ``(pa, ra, ga, sa, pb, rb, gb, sb)`` of ``Ka * Kb`` rows each, for
+        :func:`bone_costs`.
+    """
+    pa, pb = np.asarray(pa, float).reshape(-1, 2), np.asarray(pb, float).reshape(-1, 2)
+    ka, kb = len(pa), len(pb)
+    heads = (np.repeat(pa, kb, axis=0),
+             *(np.repeat(_rows(x, ka), kb) for x in (np.asarray(ra, float), ga, sa)))
+    tails = (np.tile(pb, (ka, 1)), *(np.tile(_rows(x, kb), ka)
+                                     for x in (np.asarray(rb, float), gb, sb)))
+    return (*heads, *tails)
+
+
+def _live_costs(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
+                sa: np.ndarray, rb: np.ndarray, gb: np.ndarray, sb: np.ndarray, d: np.ndarray,
+                dist: np.ndarray, cl: np.ndarray, length, params: CostParams, stations: int,
+                blocked: np.ndarray | None) -> np.ndarray:
+    """:func:`pair_cost` of ``L`` placement pairs (rows) whose length term ``cl`` is below 1.
+
+    Args:
+        drawing: The preprocessed drawing.
+        pa: Head positions, pixels, ``(L, 2)``.
+        ra: Their radii, pixels, ``(L,)``.
+        ga: Their contour groups (-1 for grid), ``(L,)``.
+        sa: Their contour sides, ``(L,)``.
+        rb: Tail radii, pixels, ``(L,)``.
+        gb: Their contour groups, ``(L,)``.
+        sb: Their contour sides, ``(L,)``.
+        d: Bone vectors (tail less head), pixels, ``(L, 2)``.
+        dist: Their lengths, pixels, ``(L,)``.
+        cl: Their length terms, ``(L,)``.
+        length: Expected drawn length, pixels, a scalar or ``(L,)``.
+        params: Cost parameters.
+        stations: Samples along the bone per outline.
+        blocked: Samples that do not count, ``(N,)`` or per row ``(L, N)`` bool, or None.
+
+    Returns:
+        ``E`` per row, ``(L,)``.
+    """
+    eps = drawing.epsilon
+    u = d / np.maximum(dist, 1e-9)[:, None]
     weight = 1.0
     if params.exposed_conformity:
-        weight = exposed_weight(dist, length, ra, rb, params.exposed_from * sigma).ravel()[live]
-    cover = _conformity(drawing, pa[ia], ra[ia], rb[ib], d_l, u, stations, params, blocked)
+        sigma = params.sigma_length * drawing.diagonal
+        weight = _exposed(dist, length, ra + rb, params.exposed_from * sigma)
+    cover = _conformity(drawing, pa, ra, rb, d, u, stations, params, blocked)
     ccf = weight * (1.0 - 0.5 * (cover[0] + cover[1]))
-    scale = (1.0 - cl.ravel()[live]) * (1.0 - ccf)
-    opposite = (ga[ia] == gb[ib]) & (ga[ia] >= 0) & (sa[ia] * sb[ib] < 0)
+    scale = (1.0 - cl) * (1.0 - ccf)
+    opposite = (ga == gb) & (ga >= 0) & (sa * sb < 0)
     cc = opposite.astype(float)
     # Cc matters where the rest of E is not 0 and the pair is not already inconsistent
     # (opposite sides of one contour); the crossing test needs room on the axis and a
     # contour of an end joint (none for two grid placements).
-    test = (scale != 0.0) & ~opposite & ((ga[ia] >= 0) | (gb[ib] >= 0))
+    test = (scale != 0.0) & ~opposite & ((ga >= 0) | (gb >= 0))
     if params.crossing_room:
-        test &= crossing_room(np.maximum(dist, length), ra, rb, eps).ravel()[live]
-    tested = np.flatnonzero(test)
-    cc[tested[_crossed(drawing, pa[ia[tested]], ra[ia[tested]], rb[ib[tested]],
-                       ga[ia[tested]], gb[ib[tested]], d_l[tested], dist_l[tested],
-                       u[tested], params)]] = 1.0
-    out.ravel()[live] = 1.0 - scale * (1.0 - params.w_consistency * cc)
-    return out
+        test &= np.maximum(dist, length) > ra + rb + 2.0 * eps  # crossing_room's test
+    t = np.flatnonzero(test)
+    cc[t[_crossed(drawing, pa[t], ra[t], rb[t], ga[t], gb[t], d[t], dist[t], u[t],
+                  params)]] = 1.0
+    return 1.0 - scale * (1.0 - params.w_consistency * cc)
 
 
 def _conformity(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, rb: np.ndarray,
@@ -360,7 +477,8 @@ def _conformity(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, rb: np.ndarray
         u: Their unit directions, ``(L, 2)``.
         stations: Samples along the bone per outline.
         params: Cost parameters.
-        blocked: Contour samples that do not count, ``(N,)`` bool, or None.
+        blocked: Contour samples that do not count, ``(N,)`` bool (or per bone ``(L, N)``),
+            or None.
 
     Returns:
         ``(left, right)`` fractions of conforming stations, each ``(L,)``.
@@ -383,7 +501,7 @@ def _conformity(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, rb: np.ndarray
         o, row = owner.ravel()[near], near // stations
         ok = np.abs(nx[o] * ux[row, 0] + ny[o] * uy[row, 0]) < sin_max
         if blocked is not None:
-            ok &= ~blocked[o]
+            ok &= ~(blocked[o] if blocked.ndim == 1 else blocked[row, o])
         cover.append(np.bincount(row[ok], minlength=len(u)) / stations)
     return cover[0], cover[1]
 
@@ -464,7 +582,11 @@ def exposed_weight(dist: np.ndarray, length: float, ra: np.ndarray, rb: np.ndarr
     Returns:
         Weights in ``[0, 1]``, ``(Ka, Kb)``.
     """
-    radii = ra[:, None] + rb[None, :]
+    return _exposed(dist, length, ra[:, None] + rb[None, :], slack)
+
+
+def _exposed(dist: np.ndarray, length, radii: np.ndarray, slack: float) -> np.ndarray:
+    """:func:`exposed_weight` element by element, ``radii`` the two radii's sums."""
     full = np.maximum(dist, length) - radii
     room = full > slack
     share = (dist - radii + slack) / np.where(room, full, 1.0)

@@ -29,8 +29,10 @@ from ..exceptions import InputError
 from .candidates import JointCandidates
 from .costs import (
     CostParams,
+    bone_costs,
     direction_cost,
     pair_cost,
+    pair_rows,
     rigid_cost,
     triplet_cost,
     unary_cost,
@@ -428,6 +430,56 @@ def link_cost(problem: MatchProblem, j: int, pa: np.ndarray, ra: np.ndarray, ga:
                              nearest=problem.nearest_length(j))
 
 
+def link_costs(problem: MatchProblem, links: list[tuple], stations: int = 8
+               ) -> list[np.ndarray]:
+    """:func:`link_cost` of several links, their pair costs evaluated in one call.
+
+    Small tables (the refinement's trials, one configuration's energy) cost mostly the
+    overhead of numpy's calls: their bones' rows go through one
+    :func:`~.costs.bone_costs`, which gives the same values as separate
+    :func:`~.costs.pair_cost` tables.
+
+    Args:
+        problem: The matching problem.
+        links: Per link the arguments of :func:`link_cost` after ``problem``:
+            ``(j, pa, ra, ga, sa, pb, rb, gb, sb)``.
+        stations: Outline samples per bone.
+
+    Returns:
+        Per link its table, ``(Ka, Kb)``.
+    """
+    out: list = [None] * len(links)
+    bones = []
+    for i, (j, pa, ra, ga, sa, pb, rb, gb, sb) in enumerate(links):
+        if problem.solving.joint_link_bone[j] < 0:
+            out[i] = rigid_cost(problem.drawing, pa, pb, problem.link_offset[j],
+                                problem.params, problem.link_length[j])
+            continue
+        out[i] = direction_cost(pa, pb, problem.link_offset[j], problem.params)
+        bones.append((i, j, pair_rows(pa, ra, ga, sa, pb, rb, gb, sb)))
+    if not bones:
+        return out
+    counts = [len(rows[0]) for _, _, rows in bones]
+    columns = [np.concatenate([rows[k] for _, _, rows in bones]) for k in range(8)]
+    blocked = None
+    if any(problem.bone_blocked(j) is not None for _, j, _ in bones):
+        none = np.zeros(problem.drawing.n_samples, bool)
+        blocked = np.repeat(np.stack([none if problem.bone_blocked(j) is None
+                                      else problem.bone_blocked(j) for _, j, _ in bones]),
+                            counts, axis=0)
+    per_row = [(j, n) for (_, j, _), n in zip(bones, counts, strict=True)]
+    costs = bone_costs(problem.drawing, *columns,
+                       np.repeat([problem.link_length[j] for j, _ in per_row], counts),
+                       problem.params, stations, blocked,
+                       [f for j, n in per_row for f in [problem.free_lengths(j)] * n],
+                       [f for j, n in per_row for f in [problem.nearest_length(j)] * n])
+    start = 0
+    for (i, _, _), n in zip(bones, counts, strict=True):
+        out[i] = out[i] + costs[start:start + n].reshape(out[i].shape)
+        start += n
+    return out
+
+
 def triplet_table(problem: MatchProblem, j: int, g: JointCandidates, p: JointCandidates,
                   c: JointCandidates) -> np.ndarray:
     """Naturalness table of grandparent, parent and joint ``j`` candidates."""
@@ -529,13 +581,18 @@ def joint_energy(problem: MatchProblem, conf: JointCandidates,
                                   problem.bone_blocked(j))
         terms["unary"] += float(cost[0])
     one = [conf.take(np.array([j])) for j in range(n)]
+    linked = [j for j in range(n) if par[j] >= 0 and (sel[j] or sel[par[j]])]
+    tables = dict(zip(linked, link_costs(problem, [
+        (j, *(getattr(one[k], f) for k in (par[j], j)
+              for f in ("positions", "radii", "group", "side"))) for j in linked]),
+        strict=True))
     for j in range(n):
         p = par[j]
         if p < 0:
             continue
         g = par[p]
         if sel[j] or sel[p]:
-            terms["pairwise"] += float(link_table(problem, j, one[p], one[j])[0, 0])
+            terms["pairwise"] += float(tables[j][0, 0])
         if problem.has_triplet(j) and (sel[j] or sel[p] or sel[g]):
             terms["triplet"] += float(triplet_table(problem, j, one[g], one[p], one[j])[0, 0, 0])
     return sum(terms.values()), terms

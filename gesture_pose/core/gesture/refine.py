@@ -28,7 +28,7 @@ from .costs import (
     unary_cost,
     unary_from_aligned,
 )
-from .mrf import MatchProblem, joint_energy, link_cost, rigid_descendants
+from .mrf import MatchProblem, joint_energy, link_costs, rigid_descendants
 
 
 @dataclass(frozen=True)
@@ -92,8 +92,8 @@ def limb_chains(problem: MatchProblem, size: int) -> list[np.ndarray]:
 
 
 def _conf_link(problem: MatchProblem, conf: JointCandidates, j: int, pa: np.ndarray,
-               pb: np.ndarray) -> np.ndarray:
-    """Joint ``j``'s link cost with the configuration's labels, positions moved.
+               pb: np.ndarray) -> tuple:
+    """Joint ``j``'s link with the configuration's labels, positions moved.
 
     Args:
         problem: The matching problem.
@@ -103,11 +103,12 @@ def _conf_link(problem: MatchProblem, conf: JointCandidates, j: int, pa: np.ndar
         pb: Joint ``j``'s positions, pixels, ``(Kb, 2)``.
 
     Returns:
-        Costs, ``(Ka, Kb)``.
+        The arguments of :func:`~.mrf.link_cost` after ``problem`` (see
+        :func:`~.mrf.link_costs`), for a ``(Ka, Kb)`` table.
     """
     p = problem.solving.joint_parent[j]
-    return link_cost(problem, j, pa, conf.radii[[p]], conf.group[[p]], conf.side[[p]], pb,
-                     conf.radii[[j]], conf.group[[j]], conf.side[[j]])
+    return (j, pa, conf.radii[[p]], conf.group[[p]], conf.side[[p]], pb,
+            conf.radii[[j]], conf.group[[j]], conf.side[[j]])
 
 
 def _per_trial(table: np.ndarray, t: int) -> np.ndarray:
@@ -245,11 +246,14 @@ def _set_energy(problem: MatchProblem, conf: JointCandidates, pos: np.ndarray,
                              prm)[1]
         total += unary_from_aligned(aligned, bool(problem.terminal[k]), prm,
                                     problem.bone_blocked(k))
+    linked = [int(j) for j in np.flatnonzero(par >= 0) if j in slot or par[j] in slot]
+    tables = dict(zip(linked, link_costs(problem, [
+        _conf_link(problem, conf, j, at(int(par[j])), at(j)) for j in linked]), strict=True))
     for j in np.flatnonzero(par >= 0):
         p = int(par[j])
         g = int(par[p])
         if j in slot or p in slot:
-            total += _per_trial(_conf_link(problem, conf, int(j), at(p), at(int(j))), t)
+            total += _per_trial(tables[int(j)], t)
         if problem.has_triplet(j) and (j in slot or p in slot or g in slot):
             ga, gb, gc = conf.group[g], conf.group[p], conf.group[j]
             shared = bool(ga == gb == gc and gc >= 0)
