@@ -344,8 +344,8 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
 def bone_costs(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
                sa: np.ndarray, pb: np.ndarray, rb: np.ndarray, gb: np.ndarray, sb: np.ndarray,
                length: np.ndarray, params: CostParams | None = None, stations: int = 8,
-               blocked: np.ndarray | None = None, free: list | None = None,
-               nearest: list | None = None) -> np.ndarray:
+               blocked: np.ndarray | None = None, free: np.ndarray | None = None,
+               nearest: np.ndarray | None = None) -> np.ndarray:
     """:func:`pair_cost` of ``L`` bones at one placement pair each, in one call, ``(L,)``.
 
     Row ``i`` is ``pair_cost`` of the head ``pa[i]`` and the tail ``pb[i]`` with that bone's
@@ -367,8 +367,10 @@ def bone_costs(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
         stations: Samples along the bone per outline.
         blocked: Contour samples that do not count for each row's conformity, ``(L, N)``
             bool, or None.
-        free: Each row's free lengths ``(shortest, longest)`` or None; None: none for all.
-        nearest: Each row's length at its nearest depth or None; None: none for all.
+        free: Each row's free lengths ``(shortest, longest)``, pixels, ``(L, 2)`` (a row
+            without: its ``length`` twice), or None: none for all.
+        nearest: Each row's length at its nearest depth, pixels, ``(L,)`` (NaN: none), or
+            None: none for all.
 
     Returns:
         Costs, ``(L,)``.
@@ -377,12 +379,17 @@ def bone_costs(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     pa, pb = np.asarray(pa, float).reshape(-1, 2), np.asarray(pb, float).reshape(-1, 2)
     n = len(pa)
     length = np.asarray(length, float)
-    free = [None] * n if free is None else free
-    nearest = [None] * n if nearest is None else nearest
     sigma = params.sigma_length * drawing.diagonal
-    lo, hi, lenient = np.array([_length_range(*row) for row in
-                                zip(length, free, nearest, strict=True)]).reshape(-1, 3).T
-    short = np.array([max(sigma, params.foreshortening * x) for x in length])
+    # _length_range row by row (min, max and the lenient stretch take the same values).
+    lo = hi = length
+    if free is not None:
+        free = np.asarray(free, float).reshape(-1, 2)
+        lo, hi = np.minimum(length, free[:, 0]), np.maximum(length, free[:, 1])
+    lenient = 0.0
+    if nearest is not None:
+        nearest = np.asarray(nearest, float)
+        lenient = np.where(np.isnan(nearest), 0.0, np.maximum(nearest - hi, 0.0))
+    short = np.maximum(sigma, params.foreshortening * length)
     d = pb - pa
     dist = np.linalg.norm(d, axis=1)
     cl = _length_term(dist, lo, hi, lenient, sigma, short, params.foreshortening_from)

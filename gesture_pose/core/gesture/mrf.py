@@ -30,12 +30,12 @@ from .candidates import JointCandidates
 from .costs import (
     CostParams,
     bone_costs,
+    circle_alignment,
     direction_cost,
     pair_cost,
     pair_rows,
     rigid_cost,
     triplet_cost,
-    unary_cost,
     unary_from_aligned,
 )
 from .preprocess import Drawing
@@ -467,12 +467,14 @@ def link_costs(problem: MatchProblem, links: list[tuple], stations: int = 8
         blocked = np.repeat(np.stack([none if problem.bone_blocked(j) is None
                                       else problem.bone_blocked(j) for _, j, _ in bones]),
                             counts, axis=0)
-    per_row = [(j, n) for (_, j, _), n in zip(bones, counts, strict=True)]
-    costs = bone_costs(problem.drawing, *columns,
-                       np.repeat([problem.link_length[j] for j, _ in per_row], counts),
-                       problem.params, stations, blocked,
-                       [f for j, n in per_row for f in [problem.free_lengths(j)] * n],
-                       [f for j, n in per_row for f in [problem.nearest_length(j)] * n])
+    lengths = [problem.link_length[j] for _, j, _ in bones]
+    free = [problem.free_lengths(j) for _, j, _ in bones]
+    nearest = [problem.nearest_length(j) for _, j, _ in bones]
+    costs = bone_costs(problem.drawing, *columns, np.repeat(lengths, counts), problem.params,
+                       stations, blocked,
+                       np.repeat([(x, x) if f is None else f
+                                  for x, f in zip(lengths, free, strict=True)], counts, axis=0),
+                       np.repeat([np.nan if x is None else x for x in nearest], counts))
     start = 0
     for (i, _, _), n in zip(bones, counts, strict=True):
         out[i] = out[i] + costs[start:start + n].reshape(out[i].shape)
@@ -574,11 +576,13 @@ def joint_energy(problem: MatchProblem, conf: JointCandidates,
     n = s.n_joints
     sel = np.ones(n, bool) if joints is None else np.isin(np.arange(n), joints)
     terms = {"unary": 0.0, "pairwise": 0.0, "triplet": 0.0}
-    for j in np.flatnonzero(sel & problem.scored):
-        _, aligned = unary_cost(problem.drawing, conf.positions[j:j + 1], conf.radii[j:j + 1],
-                                bool(problem.terminal[j]), problem.params)
-        cost = unary_from_aligned(aligned, bool(problem.terminal[j]), problem.params,
-                                  problem.bone_blocked(j))
+    scored = np.flatnonzero(sel & problem.scored)
+    # Every circle in one call (row by row the same values as one circle per call).
+    aligned = circle_alignment(problem.drawing, conf.positions[scored], conf.radii[scored],
+                               problem.params)
+    for row, j in enumerate(scored):
+        cost = unary_from_aligned(aligned[row:row + 1], bool(problem.terminal[j]),
+                                  problem.params, problem.bone_blocked(j))
         terms["unary"] += float(cost[0])
     one = [conf.take(np.array([j])) for j in range(n)]
     linked = [j for j in range(n) if par[j] >= 0 and (sel[j] or sel[par[j]])]
