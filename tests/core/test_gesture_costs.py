@@ -8,11 +8,13 @@ import numpy as np
 
 from gesture_pose.core.gesture.costs import (
     CostParams,
+    bone_costs,
     crossing_room,
     crossing_stations,
     exposed_weight,
     length_cost,
     pair_cost,
+    pair_rows,
     rigid_cost,
 )
 from gesture_pose.core.gesture.preprocess import preprocess
@@ -345,3 +347,34 @@ def test_a_bone_drawn_short_is_still_tested_for_crossings():
     assert cost([Stroke(ball)], True) < 0.5
     # Measured at the drawn length (52 < 11 + 9 + 2 steps) the bone would escape.
     assert not crossing_room(np.array([[52.0]]), np.array([11.0]), np.array([9.0]), 17.0)
+
+
+def test_bone_costs_of_a_tables_rows_are_the_table_exactly():
+    # The refinement and the energy evaluations cost many bones' placement pairs in one
+    # bone_costs call (each row with its bone's length, free range, nearest length and
+    # blocked samples); the search costs tables with pair_cost, which computes only the
+    # pairs whose length term is below 1. Both must give the same values, bit for bit.
+    d = preprocess(_limb(250.0))
+    rng = np.random.default_rng(3)
+    pa, pb = rng.uniform([50, 230], [450, 370], (17, 2)), rng.uniform([50, 230], [450, 370],
+                                                                        (23, 2))
+    ra, rb = rng.uniform(10, 40, 17), rng.uniform(10, 40, 23)
+    ga, gb = rng.integers(-1, d.group.max() + 1, 17), rng.integers(-1, d.group.max() + 1, 23)
+    sa, sb = rng.choice([-1, 0, 1], 17), rng.choice([-1, 0, 1], 23)
+    blocked = rng.random(d.n_samples) < 0.2
+    # (length, blocked, free range, nearest length) of two bones.
+    bones = [(300.0, blocked, (250.0, 320.0), 340.0), (120.0, None, None, None)]
+    rows = pair_rows(pa, ra, ga, sa, pb, rb, gb, sb)
+    n = len(rows[0])
+    for params in (CostParams(), CostParams(transverse_crossings=False, crossing_room=False,
+                                            exposed_conformity=False, foreshortening=0.0)):
+        tables = [pair_cost(d, pa, ra, ga, sa, pb, rb, gb, sb, length, params, blocked=blk,
+                            free=free, nearest=near) for length, blk, free, near in bones]
+        got = bone_costs(d, *(np.concatenate([r, r]) for r in rows),
+                         np.repeat([300.0, 120.0], n), params, 8,
+                         np.repeat(np.stack([blocked, np.zeros_like(blocked)]), n, axis=0),
+                         np.repeat([(250.0, 320.0), (120.0, 120.0)], n, axis=0),
+                         np.repeat([340.0, np.nan], n))
+        expected = np.concatenate([t.ravel() for t in tables])
+        np.testing.assert_array_equal(got, expected)
+        assert 0 < np.mean(expected == 1.0) < 1  # pruned pairs and costed ones
