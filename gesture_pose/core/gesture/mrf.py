@@ -51,12 +51,16 @@ class TreeEnergy:
         unary: Per node, ``(K_j,)``.
         pairwise: Per node, ``(K_parent, K_j)`` or None for roots.
         triplet: Per node, ``(K_grandparent, K_parent, K_j)`` or None.
+        keys: Per node, a hashable key of everything its pairwise and triplet tables are
+            computed from (:func:`build_energy`'s cache keys), or None: :func:`solve_tree`'s
+            memo then hashes these small keys instead of the tables' bytes.
     """
 
     parent: np.ndarray
     unary: tuple[np.ndarray, ...]
     pairwise: tuple[np.ndarray | None, ...]
     triplet: tuple[np.ndarray | None, ...]
+    keys: tuple | None = None
 
     def __post_init__(self) -> None:
         """Check that the tables fit the tree."""
@@ -110,8 +114,11 @@ def solve_tree(energy: TreeEnergy, memo: dict | None = None) -> tuple[np.ndarray
     for j in range(n - 1, -1, -1):
         p = par[j]
         if memo is not None:
-            parts = [energy.unary[j], energy.pairwise[j], energy.triplet[j]]
+            parts = [energy.unary[j]]
+            if energy.keys is None:
+                parts += [energy.pairwise[j], energy.triplet[j]]
             sig[j] = hash((j, *(None if a is None else (a.shape, a.tobytes()) for a in parts),
+                           None if energy.keys is None else energy.keys[j],
                            *(sig[c] for c in children[j])))
             hit = memo.get(sig[j])
             if hit is not None:
@@ -509,9 +516,10 @@ def build_energy(problem: MatchProblem, cands: list[JointCandidates],
                   np.maximum(c.unary, unary_from_aligned(c.aligned, bool(problem.terminal[j]),
                                                          problem.params, problem.bone_blocked(j)))
                   for j, c in enumerate(cands))
-    pair, trip = [], []
+    pair, trip, keys = [], [], []
     for j in range(problem.solving.n_joints):
         p = par[j]
+        pair_key = trip_key = None
         if p < 0:
             pair.append(None)
         else:
@@ -526,6 +534,7 @@ def build_energy(problem: MatchProblem, cands: list[JointCandidates],
                 if cache is not None:
                     cache[key] = table
             pair.append(table)
+            pair_key = key
         tr = None
         if triplets and p >= 0 and problem.has_triplet(j):
             g = par[p]
@@ -537,8 +546,10 @@ def build_energy(problem: MatchProblem, cands: list[JointCandidates],
                 tr = triplet_table(problem, j, cands[g], cands[p], cands[j])
                 if cache is not None:
                     cache[key] = tr
+            trip_key = key
         trip.append(tr)
-    return TreeEnergy(par, unary, tuple(pair), tuple(trip))
+        keys.append((pair_key, trip_key))
+    return TreeEnergy(par, unary, tuple(pair), tuple(trip), tuple(keys))
 
 
 def configuration(cands: list[JointCandidates], labels: np.ndarray) -> JointCandidates:
