@@ -138,6 +138,14 @@ def _unit_steps(count: int) -> np.ndarray:
     return s
 
 
+def _norms(x: np.ndarray, axis: int) -> np.ndarray:
+    """``np.linalg.norm(x, axis=axis)`` of a real array without its wrapper's overhead.
+
+    The same values: the square root of the sum of the squares along ``axis``.
+    """
+    return np.sqrt(np.add.reduce(x * x, axis=axis))
+
+
 def _rows(x, k: int, dtype=None) -> np.ndarray:
     """``x`` as an array of ``k`` rows: itself when it has them, else broadcast."""
     x = np.asarray(x, dtype)
@@ -323,7 +331,7 @@ def pair_cost(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     ra, rb = _rows(ra, ka, float), _rows(rb, kb, float)
     ga, sa, gb, sb = _rows(ga, ka), _rows(sa, ka), _rows(gb, kb), _rows(sb, kb)
     d = pb[None, :, :] - pa[:, None, :]
-    dist = np.linalg.norm(d, axis=2)
+    dist = _norms(d, 2)
     sigma = params.sigma_length * drawing.diagonal
     cl = length_cost(dist, length, sigma, free, nearest,
                      max(sigma, params.foreshortening * length), params.foreshortening_from)
@@ -391,7 +399,7 @@ def bone_costs(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
         lenient = np.where(np.isnan(nearest), 0.0, np.maximum(nearest - hi, 0.0))
     short = np.maximum(sigma, params.foreshortening * length)
     d = pb - pa
-    dist = np.linalg.norm(d, axis=1)
+    dist = _norms(d, 1)
     cl = _length_term(dist, lo, hi, lenient, sigma, short, params.foreshortening_from)
     out = np.ones(n)
     live = np.flatnonzero(cl != 1.0)
@@ -414,11 +422,20 @@ def pair_rows(pa: np.ndarray, ra: np.ndarray, ga: np.ndarray, sa: np.ndarray,
     """
     pa, pb = np.asarray(pa, float).reshape(-1, 2), np.asarray(pb, float).reshape(-1, 2)
     ka, kb = len(pa), len(pb)
-    heads = (np.repeat(pa, kb, axis=0),
-             *(np.repeat(_rows(x, ka), kb) for x in (np.asarray(ra, float), ga, sa)))
-    tails = (np.tile(pb, (ka, 1)), *(np.tile(_rows(x, kb), ka)
-                                     for x in (np.asarray(rb, float), gb, sb)))
-    return (*heads, *tails)
+    row = np.arange(ka * kb)
+    ia, ib = row // kb, row % kb
+    return (pa[ia], *(_gather(x, ka, ia) for x in (np.asarray(ra, float), ga, sa)),
+            pb[ib], *(_gather(x, kb, ib) for x in (np.asarray(rb, float), gb, sb)))
+
+
+def _gather(x, k: int, index: np.ndarray) -> np.ndarray:
+    """``x`` broadcast to ``(k,)``, at ``index``."""
+    x = np.asarray(x).reshape(-1)
+    if len(x) == k:
+        return x[index]
+    if len(x) != 1:
+        raise ValueError(f"expected {k} values or one, got {len(x)}")
+    return x[index * 0]
 
 
 def _live_costs(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
@@ -738,7 +755,7 @@ def direction_cost(pa: np.ndarray, pb: np.ndarray, reference: np.ndarray,
     params = params or CostParams()
     d = np.asarray(pb, float)[None] - np.asarray(pa, float)[:, None]
     ref = np.asarray(reference, float)
-    norm = np.linalg.norm(d, axis=2) * max(float(np.linalg.norm(ref)), 1e-9)
+    norm = _norms(d, 2) * max(float(np.linalg.norm(ref)), 1e-9)
     cos = np.where(norm > 1e-9, d @ ref / np.maximum(norm, 1e-9), 1.0)
     return params.w_direction * 0.5 * (1.0 - cos)
 
@@ -762,8 +779,8 @@ def triplet_cost(pa: np.ndarray, pb: np.ndarray, pc: np.ndarray, shared: np.ndar
     params = params or CostParams()
     d1 = pb[None, :, :] - pa[:, None, :]
     d2 = pc[None, :, :] - pb[:, None, :]
-    n1 = np.linalg.norm(d1, axis=2)
-    n2 = np.linalg.norm(d2, axis=2)
+    n1 = _norms(d1, 2)
+    n2 = _norms(d2, 2)
     cos = np.einsum("abd,bcd->abc", d1, d2) / np.maximum(n1[:, :, None] * n2[None], 1e-9)
     ang = np.arccos(np.minimum(np.maximum(cos, -1.0), 1.0))
     sigma = np.where(shared, params.sigma_angle_shared, params.sigma_angle)
