@@ -89,6 +89,25 @@ def test_distance_field_is_infinite_outside_and_agrees_with_the_kd_tree():
     assert np.all(dist[inside] >= nearest - 0.5 * d.epsilon - d.field_cell)
 
 
+def test_lookup_along_a_direction_ignores_ink_running_across_it():
+    # A vertical line at x = 0 and a horizontal one at y = 100 ending 20 px from it.
+    d = preprocess([_line([0, 0], [0, 200]), _line([20, 100], [200, 100])])
+    probe = np.array([[30.0, 110.0], [30.0, 50.0]])
+    dist, owner = d.lookup(probe)
+    np.testing.assert_allclose(dist[0], 10.0, atol=d.field_cell)  # the horizontal line
+    assert abs(d.normals[owner[0], 1]) > 0.99
+    up = np.zeros(2), np.ones(2)  # along the vertical line: only its ink counts
+    dist, owner = d.lookup_along_xy(probe[:, 0], probe[:, 1], *up, np.radians(30.0))
+    np.testing.assert_allclose(dist, 30.0, atol=d.field_cell)
+    assert np.all(np.abs(d.points[owner, 0]) < 1e-9)
+    across = np.ones(2), np.zeros(2)  # along the horizontal line
+    dist, owner = d.lookup_along_xy(probe[:, 0], probe[:, 1], *across, np.radians(30.0))
+    np.testing.assert_allclose(dist, [10.0, 50.0], atol=d.field_cell)
+    assert np.all(np.abs(d.points[owner, 1] - 100.0) < 1e-9)
+    far = d.lookup_along_xy(np.array([1e6]), np.array([0.0]), np.ones(1), np.zeros(1), 0.5)
+    assert np.isinf(far[0][0])
+
+
 def test_empty_drawing_is_an_input_error():
     with pytest.raises(InputError, match="no strokes"):
         preprocess([])

@@ -151,6 +151,54 @@ class Drawing:
         owner[1:-1, 1:-1] = self.field_owner
         return dist.ravel(), owner.ravel()
 
+    def lookup_along_xy(self, x: np.ndarray, y: np.ndarray, ux: np.ndarray, uy: np.ndarray,
+                        max_angle: float) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`lookup_xy` among the contour samples running along a direction only.
+
+        The distance and the nearest sample of the ink whose tangent lies within
+        ``max_angle`` of the direction ``(ux, uy)`` (either way along it); ink of any other
+        direction is ignored, so a crease meeting an outline does not hide the outline.
+        The directions are rounded to :data:`ORIENTATION_BINS` bins over 180 degrees (each
+        bin's field holds the ink within ``max_angle`` of its centre,
+        :func:`oriented_fields`): a sample up to half a bin beyond ``max_angle`` can be
+        found, one up to half a bin within it missed.
+
+        Args:
+            x: Pixel x coordinates, any shape.
+            y: Pixel y coordinates, the same shape.
+            ux: Unit direction x components, broadcastable to ``x``.
+            uy: Unit direction y components, broadcastable to ``x``.
+            max_angle: Largest angle between the ink's tangent and the direction, radians.
+
+        Returns:
+            ``(distance, sample)`` as :meth:`lookup`, shaped like ``x``.
+        """
+        dist, owner = self._oriented_field(float(max_angle))
+        h, w = self.field_dist.shape
+        angle = np.mod(np.arctan2(uy, ux), np.pi)
+        k = np.rint(angle / (np.pi / ORIENTATION_BINS)).astype(np.int64) % ORIENTATION_BINS
+        ix = np.floor((x - self.field_origin[0]) / self.field_cell + 0.5).astype(np.int64)
+        iy = np.floor((y - self.field_origin[1]) / self.field_cell + 0.5).astype(np.int64)
+        inside = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
+        flat = np.where(inside, k * (h * w) + iy * w + ix, ORIENTATION_BINS * h * w)
+        return dist[flat], owner[flat]
+
+    def _oriented_field(self, max_angle: float) -> tuple[np.ndarray, np.ndarray]:
+        """Flattened fields of :func:`oriented_fields` (a sentinel cell last), cached."""
+        cache = self._oriented_cache
+        if max_angle not in cache:
+            dist, owner = oriented_fields(self.points, self.next, self.tangents,
+                                          self.field_origin, self.field_cell,
+                                          self.field_dist.shape, self.epsilon, max_angle)
+            cache[max_angle] = (np.append(dist.ravel(), np.float32(np.inf)),
+                                np.append(owner.ravel(), owner.ravel()[-1]))
+        return cache[max_angle]
+
+    @cached_property
+    def _oriented_cache(self) -> dict:
+        """The fields of :meth:`_oriented_field` built so far, by ``max_angle``."""
+        return {}
+
     def stroke_samples(self, k: int) -> np.ndarray:
         """Samples of stroke ``k``, shape ``(n_k, 2)``."""
         return self.points[self.offsets[k]:self.offsets[k + 1]]
@@ -313,6 +361,25 @@ def distance_field(points: np.ndarray, nxt: np.ndarray, bbox: np.ndarray, epsilo
     pad = margin * float(np.linalg.norm(bbox[1] - bbox[0]))
     origin = bbox[0] - pad
     shape = np.ceil((bbox[1] - bbox[0] + 2 * pad) / cell).astype(int) + 1
+    dense, owner_of = _ink(points, nxt, epsilon, cell)
+    g = np.floor((dense - origin) / cell + 0.5).astype(int)
+    mask = np.ones((shape[1], shape[0]), bool)
+    owner = np.zeros((shape[1], shape[0]), int)
+    mask[g[:, 1], g[:, 0]] = False
+    owner[g[:, 1], g[:, 0]] = owner_of
+    dist, (iy, ix) = distance_transform_edt(mask, return_indices=True)
+    return origin, cell, dist * cell, owner[iy, ix]
+
+
+def _ink(points: np.ndarray, nxt: np.ndarray, epsilon: float, cell: float
+         ) -> tuple[np.ndarray, np.ndarray]:
+    """The contours as dense points (half a cell apart) and the sample owning each.
+
+    Gaps closed by bridges up to two steps long count as ink; longer bridges do not.
+
+    Returns:
+        ``(points (D, 2) pixels, owner sample (D,) int)``.
+    """
     src = np.flatnonzero(nxt >= 0)
     seg = points[nxt[src]] - points[src]
     # Bridges longer than two steps are links, not ink: keep them out of the field.
@@ -323,11 +390,53 @@ def distance_field(points: np.ndarray, nxt: np.ndarray, bbox: np.ndarray, epsilo
     frac = (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)) / count[rep]
     dense = np.concatenate([points, points[src][rep] + frac[:, None] * seg[rep]])
     owner_of = np.concatenate([np.arange(len(points)),
-                               np.where(frac[:] < 0.5, src[rep], nxt[src][rep])])
+                               np.where(frac < 0.5, src[rep], nxt[src][rep])])
+    return dense, owner_of
+
+
+#: Direction bins over 180 degrees of :func:`oriented_fields` (5 degrees each).
+ORIENTATION_BINS = 36
+
+
+def oriented_fields(points: np.ndarray, nxt: np.ndarray, tangents: np.ndarray,
+                    origin: np.ndarray, cell: float, shape: tuple[int, int], epsilon: float,
+                    max_angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """Distance fields of the ink running along each of :data:`ORIENTATION_BINS` directions.
+
+    Field ``k`` is :func:`distance_field`'s over only the ink whose owner sample's tangent
+    lies within ``max_angle`` of the direction ``k * 180 / ORIENTATION_BINS`` degrees
+    (either way along it), on the same grid (``origin``, ``cell``, ``shape``).
+
+    Args:
+        points: Contour samples, ``(N, 2)``.
+        nxt: Next sample along the contour or -1, ``(N,)``.
+        tangents: Unit tangents of the samples, ``(N, 2)``.
+        origin: Pixel position of the grid's first cell, ``(2,)``.
+        cell: Grid step, pixels.
+        shape: Grid shape ``(H, W)``.
+        epsilon: Sampling step, pixels.
+        max_angle: Largest angle between the ink and a bin's direction, radians.
+
+    Returns:
+        ``(distance (B, H, W) float32 pixels, owner sample (B, H, W) int32)``; infinite
+        distance in a bin no ink runs along.
+    """
+    dense, owner_of = _ink(points, nxt, epsilon, cell)
     g = np.floor((dense - origin) / cell + 0.5).astype(int)
-    mask = np.ones((shape[1], shape[0]), bool)
-    owner = np.zeros((shape[1], shape[0]), int)
-    mask[g[:, 1], g[:, 0]] = False
-    owner[g[:, 1], g[:, 0]] = owner_of
-    dist, (iy, ix) = distance_transform_edt(mask, return_indices=True)
-    return origin, cell, dist * cell, owner[iy, ix]
+    bins = np.arange(ORIENTATION_BINS) * (np.pi / ORIENTATION_BINS)
+    axes = np.stack([np.cos(bins), np.sin(bins)], axis=1)
+    along = np.abs(tangents[owner_of] @ axes.T) >= np.cos(max_angle)  # (D, B)
+    dist = np.full((ORIENTATION_BINS, *shape), np.inf, np.float32)
+    owner = np.zeros((ORIENTATION_BINS, *shape), np.int32)
+    for k in range(ORIENTATION_BINS):
+        sel = along[:, k]
+        if not sel.any():
+            continue
+        mask = np.ones(shape, bool)
+        own = np.zeros(shape, int)
+        mask[g[sel, 1], g[sel, 0]] = False
+        own[g[sel, 1], g[sel, 0]] = owner_of[sel]
+        d, (iy, ix) = distance_transform_edt(mask, return_indices=True)
+        dist[k], owner[k] = d * cell, own[iy, ix]
+    return dist, owner
+
