@@ -82,9 +82,11 @@ def _trace(arm, target="Traced Contours", **kwargs):
 #
 # So the check holds for rest, raise_left_arm, reach and crouch
 # (test_every_joint_within_4_percent; the step is an expected failure, its pelvis group
-# 0.002 over). The limits below are those measurements plus a margin for platform noise only
-# (half a percent on the median, one joint on the share): the median error, and the share
-# of joints the issue's 4% already holds for.
+# 0.002 over; `CostParams.oriented_conformity`, off, fits it at 3.21 with the other four
+# within 4%, but moves the benches' drawings both ways: docs/gesture.md). The limits below
+# are those measurements plus a margin for platform noise only (half a percent on the
+# median, one joint on the share): the median error, and the share of joints the issue's
+# 4% already holds for.
 @pytest.mark.parametrize("pose_name,median_limit,within_limit", [
     ("step", 2.2, 0.84),
     ("rest", 0.86, 0.96),

@@ -378,3 +378,41 @@ def test_bone_costs_of_a_tables_rows_are_the_table_exactly():
         expected = np.concatenate([t.ravel() for t in tables])
         np.testing.assert_array_equal(got, expected)
         assert 0 < np.mean(expected == 1.0) < 1  # pruned pairs and costed ones
+
+
+def _torso_with_creases() -> list[Stroke]:
+    """A torso's two sides (x = 100 and 300) and a crease meeting each at y = 200 at 45
+    degrees from inside (a thigh's crease meeting the outline at the hip), drawn a few
+    pixels past the outline, as traced lines overshoot."""
+    return [Stroke(segment([100.0, 0.0], [100.0, 400.0], 80)),
+            Stroke(segment([300.0, 0.0], [300.0, 400.0], 80)),
+            Stroke(segment([96.0, 196.0], [160.0, 260.0], 30)),
+            Stroke(segment([304.0, 196.0], [240.0, 260.0], 30))]
+
+
+def _link_cost(d, head, tail, radius: float, length: float, oriented: bool) -> float:
+    params = CostParams(w_direction=0.0, exposed_conformity=False,
+                        oriented_conformity=oriented)
+    none, zero = -np.ones(1, int), np.zeros(1, int)
+    return float(pair_cost(d, np.array([head], float), np.array([radius]), none, zero,
+                           np.array([tail], float), np.array([radius]), none, zero, length,
+                           params)[0, 0])
+
+
+def test_a_crease_meeting_the_outline_does_not_hide_it_from_a_link_inside_its_circles():
+    # The pelvis link of the test view's step: 40 px between joints of radius 100 (their
+    # circles overlap), its checkpoints on the torso's sides. At the crease's junction the
+    # distance field gives the checkpoint to the crease, 45 degrees off the bone: the
+    # paper's Ccf fails it there on both sides (1 of 8 stations each, 0.125).
+    d = preprocess(_torso_with_creases())
+    head, tail = (200.0, 177.5), (200.0, 217.5)  # a station at y = 200 on each side
+    assert _link_cost(d, head, tail, 100.0, 40.0, oriented=False) == 0.125
+    # With oriented_conformity the outline, as near as the crease, counts.
+    assert _link_cost(d, head, tail, 100.0, 40.0, oriented=True) == 0.0
+    # A link whose circles leave room between them (a limb) keeps the paper's Ccf: a line
+    # meeting a limb's outline can mark its joint (a knee's outline on a foreshortened leg).
+    for head, tail, radius, length in (((130.0, 120.0), (130.0, 280.0), 30.0, 160.0),
+                                       ((200.0, 160.0), (200.0, 240.0), 30.0, 80.0)):
+        assert (_link_cost(d, head, tail, radius, length, oriented=True)
+                == _link_cost(d, head, tail, radius, length, oriented=False))
+
