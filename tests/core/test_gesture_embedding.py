@@ -331,6 +331,36 @@ def test_an_enumerated_solution_is_accepted_by_the_constraints_or_its_gains():
     assert not embedding._accepts((got(1, 0.69), 4.8), old, params)  # 1% less for 0.2 less
 
 
+
+def test_a_blocking_resolve_buys_coverage_at_the_consistency_rate():
+    # resolve_rate: 0.25 of E_match per percent, at least 0.5 (off by default).
+    params = GestureParams(resolve_rate=True)
+    old = (14, 0.811, 7.49)
+    # The 2D bench's tail_up under oriented_conformity: 10 pairs fewer and 6.5% more
+    # coverage for 2.84 more energy, which a 2% jump alone used to buy.
+    assert not embedding._resolves((4, 0.876, 10.33), old, params)
+    assert embedding._resolves((4, 0.876, 7.49 + 1.6), old, params)   # 6.5% for 1.6
+    assert embedding._resolves((4, 0.811, 7.49 + 0.5), old, params)   # the tolerance
+    assert not embedding._resolves((14, 0.9, 7.6), old, params)       # not lower at all
+    assert embedding._resolves((4, 0.876, 10.33), old, GestureParams())  # any, for 2%
+
+
+def test_the_second_seed_wins_on_energy_net_of_coverage_not_on_the_penalty():
+    params = GestureParams()
+
+    def got(overlaps: int, coverage: float):
+        return SimpleNamespace(overlaps=[(0, 1)] * overlaps, coverage=coverage)
+
+    # The 3D bench's oblique reach: the arm recovered, 2 pairs fewer, 6.9% more coverage
+    # for 0.8 more E_match (5.91 - 25 * 0.845 < 5.10 - 25 * 0.776).
+    assert embedding._seed_accepts((got(0, 0.845), 5.906), (got(2, 0.776), 5.101), params)
+    # The 2D bench's step at 3/4: constraints met, 4 pairs fewer, but 2.8 more E_match
+    # for 4.6% more coverage: the leg moved off its contour is refused.
+    assert not embedding._seed_accepts((got(0, 0.858), 5.944), (got(4, 0.812), 3.136),
+                                       params)
+    # Never more overlapping pairs.
+    assert not embedding._seed_accepts((got(3, 0.9), 3.0), (got(2, 0.8), 5.0), params)
+
 def test_coverage_moves_keep_the_best_solve_the_rule_accepts(monkeypatch):
     """Each round ranks only the solves _accepts takes: a better-ranked solve it refuses
     (more coverage bought with much more energy) does not end the moves."""
