@@ -843,8 +843,8 @@ def _blocking_rounds(base, contour: list[JointCandidates], mid_r: np.ndarray,
     small differences of the costs (the 3D bench's reach seen obliquely, its left arm
     folded onto the legs after three rounds and recovered in the fourth), so the best
     solution after the extra rounds is a second seed for the rest of the consistency step
-    and the refinement, and the caller keeps the better result (:func:`_accepts` on the
-    final energies, overlaps counted).
+    and the refinement, and the caller keeps the better result (:func:`_seed_accepts` on
+    the final results: no more overlapping pairs, and a lower energy net of coverage).
 
     Args:
         base: The matching problem without blocked samples.
