@@ -261,13 +261,21 @@ def length_cost(dist: np.ndarray, length: float, sigma: float,
     return _length_term(np.asarray(dist, float), lo, hi, lenient, sigma, short_sigma, knee)
 
 
-def _length_range(length: float, free: tuple[float, float] | None,
-                  nearest: float | None) -> tuple[float, float, float]:
-    """:func:`length_cost`'s free range ``(lo, hi)`` and its lenient stretch above it."""
-    lo = hi = float(length)
+def _length_range(length, free, nearest) -> tuple:
+    """:func:`length_cost`'s free range ``(lo, hi)`` and its lenient stretch above it.
+
+    For one bone (``length`` a scalar, ``free`` ``(2,)`` or None, ``nearest`` a scalar or
+    None) or row by row (``length`` ``(L,)``, ``free`` ``(L, 2)``, ``nearest`` ``(L,)``
+    with NaN where a row has none): the same values either way.
+    """
+    lo = hi = np.asarray(length, float)
     if free is not None:
-        lo, hi = min(lo, float(free[0])), max(hi, float(free[1]))
-    return lo, hi, 0.0 if nearest is None else max(float(nearest) - hi, 0.0)
+        free = np.asarray(free, float)
+        lo, hi = np.minimum(lo, free[..., 0]), np.maximum(hi, free[..., 1])
+    if nearest is None:
+        return lo, hi, 0.0
+    nearest = np.asarray(nearest, float)
+    return lo, hi, np.where(np.isnan(nearest), 0.0, np.maximum(nearest - hi, 0.0))
 
 
 def _length_term(dist: np.ndarray, lo, hi, lenient, sigma: float, short_sigma, knee: float
@@ -398,15 +406,8 @@ def bone_costs(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray,
     n = len(pa)
     length = np.asarray(length, float)
     sigma = params.sigma_length * drawing.diagonal
-    # _length_range row by row (min, max and the lenient stretch take the same values).
-    lo = hi = length
-    if free is not None:
-        free = np.asarray(free, float).reshape(-1, 2)
-        lo, hi = np.minimum(length, free[:, 0]), np.maximum(length, free[:, 1])
-    lenient = 0.0
-    if nearest is not None:
-        nearest = np.asarray(nearest, float)
-        lenient = np.where(np.isnan(nearest), 0.0, np.maximum(nearest - hi, 0.0))
+    lo, hi, lenient = _length_range(
+        length, None if free is None else np.asarray(free, float).reshape(-1, 2), nearest)
     short = np.maximum(sigma, params.foreshortening * length)
     d = pb - pa
     dist = _norms(d, 1)
@@ -493,7 +494,7 @@ def _live_costs(drawing: Drawing, pa: np.ndarray, ra: np.ndarray, ga: np.ndarray
     # contour of an end joint (none for two grid placements).
     test = (scale != 0.0) & ~opposite & ((ga >= 0) | (gb >= 0))
     if params.crossing_room:
-        test &= np.maximum(dist, length) > ra + rb + 2.0 * eps  # crossing_room's test
+        test &= _room(np.maximum(dist, length), ra + rb, eps)
     t = np.flatnonzero(test)
     cc[t[_crossed(drawing, pa[t], ra[t], rb[t], ga[t], gb[t], d[t], dist[t], u[t],
                   params)]] = 1.0
@@ -700,7 +701,12 @@ def crossing_room(dist: np.ndarray, ra: np.ndarray, rb: np.ndarray, eps: float) 
     Returns:
         ``(Ka, Kb)`` bool.
     """
-    return dist > ra[:, None] + rb[None, :] + 2.0 * eps
+    return _room(dist, ra[:, None] + rb[None, :], eps)
+
+
+def _room(dist: np.ndarray, radii: np.ndarray, eps: float) -> np.ndarray:
+    """:func:`crossing_room` element by element, ``radii`` the two radii's sums."""
+    return dist > radii + 2.0 * eps
 
 
 def crossing_stations(dist: np.ndarray, ra: np.ndarray, rb: np.ndarray, eps: float,
