@@ -177,8 +177,7 @@ class Drawing:
         h, w = self.field_dist.shape
         angle = np.mod(np.arctan2(uy, ux), np.pi)
         k = np.rint(angle / (np.pi / ORIENTATION_BINS)).astype(np.int64) % ORIENTATION_BINS
-        ix = np.floor((x - self.field_origin[0]) / self.field_cell + 0.5).astype(np.int64)
-        iy = np.floor((y - self.field_origin[1]) / self.field_cell + 0.5).astype(np.int64)
+        ix, iy = self._cell(x, 0, w), self._cell(y, 1, h)
         inside = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
         flat = np.where(inside, k * (h * w) + iy * w + ix, ORIENTATION_BINS * h * w)
         return dist[flat], owner[flat]
@@ -363,12 +362,28 @@ def distance_field(points: np.ndarray, nxt: np.ndarray, bbox: np.ndarray, epsilo
     shape = np.ceil((bbox[1] - bbox[0] + 2 * pad) / cell).astype(int) + 1
     dense, owner_of = _ink(points, nxt, epsilon, cell)
     g = np.floor((dense - origin) / cell + 0.5).astype(int)
-    mask = np.ones((shape[1], shape[0]), bool)
-    owner = np.zeros((shape[1], shape[0]), int)
+    dist, owner = _nearest_ink(g, owner_of, (shape[1], shape[0]))
+    return origin, cell, dist * cell, owner
+
+
+def _nearest_ink(g: np.ndarray, owner_of: np.ndarray, shape: tuple[int, int]
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (in cells) from every cell to the nearest inked cell, and that ink's sample.
+
+    Args:
+        g: Inked cells ``(x, y)``, ``(D, 2)`` int.
+        owner_of: The sample owning each, ``(D,)`` int.
+        shape: Grid shape ``(H, W)``.
+
+    Returns:
+        ``(distance (H, W) cells, owner sample (H, W) int)``.
+    """
+    mask = np.ones(shape, bool)
+    owner = np.zeros(shape, int)
     mask[g[:, 1], g[:, 0]] = False
     owner[g[:, 1], g[:, 0]] = owner_of
     dist, (iy, ix) = distance_transform_edt(mask, return_indices=True)
-    return origin, cell, dist * cell, owner[iy, ix]
+    return dist, owner[iy, ix]
 
 
 def _ink(points: np.ndarray, nxt: np.ndarray, epsilon: float, cell: float
@@ -432,11 +447,7 @@ def oriented_fields(points: np.ndarray, nxt: np.ndarray, tangents: np.ndarray,
         sel = along[:, k]
         if not sel.any():
             continue
-        mask = np.ones(shape, bool)
-        own = np.zeros(shape, int)
-        mask[g[sel, 1], g[sel, 0]] = False
-        own[g[sel, 1], g[sel, 0]] = owner_of[sel]
-        d, (iy, ix) = distance_transform_edt(mask, return_indices=True)
-        dist[k], owner[k] = d * cell, own[iy, ix]
+        d, own = _nearest_ink(g[sel], owner_of[sel], shape)
+        dist[k], owner[k] = d * cell, own
     return dist, owner
 
