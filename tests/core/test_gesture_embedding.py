@@ -331,7 +331,6 @@ def test_an_enumerated_solution_is_accepted_by_the_constraints_or_its_gains():
     assert not embedding._accepts((got(1, 0.69), 4.8), old, params)  # 1% less for 0.2 less
 
 
-
 def test_a_blocking_resolve_buys_coverage_at_the_consistency_rate():
     # resolve_rate: 0.25 of E_match per percent, at least 0.5 (off by default).
     params = GestureParams(resolve_rate=True)
@@ -360,6 +359,7 @@ def test_the_second_seed_wins_on_energy_net_of_coverage_not_on_the_penalty():
                                        params)
     # Never more overlapping pairs.
     assert not embedding._seed_accepts((got(3, 0.9), 3.0), (got(2, 0.8), 5.0), params)
+
 
 def test_coverage_moves_keep_the_best_solve_the_rule_accepts(monkeypatch):
     """Each round ranks only the solves _accepts takes: a better-ranked solve it refuses
