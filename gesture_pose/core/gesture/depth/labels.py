@@ -48,7 +48,7 @@ from ...exceptions import SolverError
 from ...skeleton import Pose, Skeleton
 from ..consistency import symmetric_limbs
 from ..types import Embedding2D, SolvingSkeleton
-from . import energies, ordering, plausibility
+from . import energies, ordering, plausibility, start
 from .solve3d import DepthOptions, Pose3DResult, rest_front, solve_pose3d
 
 
@@ -343,7 +343,9 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     the fitted labels' and which draws at least ``limits.bind_links`` more links as the
     bind pose shows them (:func:`bind_links`) is taken, the one drawing most (ours). When
     the fitted labels' pose costs less than ``limits.margin`` only the alternatives
-    drawing that much more as at bind are solved.
+    drawing that much more as at bind are solved. An alternative that reverses the
+    drawn facing (:func:`.start.drawn_facing`: the hips exchanged whole) is not solved
+    unless ``limits.facing``: it is the other facing for the whole figure.
 
     Args:
         skeleton: The full skeleton.
@@ -385,6 +387,15 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     # crossing: the agreement does not re-choose it.
     gains = (agree >= agree[0] + limits.bind_links if limits.bind_links is not None
              else np.zeros(len(agree), bool)) & (np.array(names) != "all pairs")
+    # A relabelling that turns the drawn facing round (the hips exchanged whole reverse
+    # the image order :func:`.start.drawn_facing` reads) is the facing in disguise, which
+    # the ranges cannot tell either (module docstring): it is left out as "all pairs" is.
+    facing = np.ones(len(embeddings), bool)
+    if opts.read_facing and not limits.facing:
+        facing = np.array([start.drawn_facing(s, e.joints2d, s.rest_joints, frame)
+                           for e in embeddings]) == start.drawn_facing(
+                               s, embedding.joints2d, s.rest_joints, frame)
+    gains &= facing
     plausible = costs[0] < limits.margin
     if plausible and not np.any(gains):
         # No labelling can cost ``margin`` less (costs are never negative), none draws
@@ -397,7 +408,8 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     turned = ordering.turned_joints(base.ordering)
     for k, pairs in enumerate(swaps[1:], start=1):
         emb = embeddings[k]
-        if np.isin(np.asarray(pairs), turned).any() or (plausible and not gains[k]):
+        if (np.isin(np.asarray(pairs), turned).any() or (plausible and not gains[k])
+                or not facing[k]):
             results.append(base)
             continue
         try:
