@@ -260,6 +260,22 @@ def test_an_elbow_bent_backwards_is_outside_the_shoulders_rotation():
     assert plausibility.arm_cost(upper, back, DOWN, FRONT) == pytest.approx(expected)
 
 
+def test_an_upper_arm_swung_far_back_is_outside_the_shoulders_extension():
+    """The shoulder extends about 60 degrees: a straight arm swung 60 degrees back from
+    the chest's down, or raised forward or sideways, is within range; swung straight back
+    (horizontal, 90 degrees) it costs the 30 beyond, and 75 degrees back and 45 out to
+    the side the excess in the plane of flexion times the arm's share in that plane."""
+    for upper in ([0.0, np.sin(np.radians(60)), -np.cos(np.radians(60))],  # 60 back
+                  [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]):  # forward, sideways
+        u = np.array(upper)
+        assert plausibility.arm_cost(u, u, DOWN, FRONT) == pytest.approx(0.0, abs=1e-9)
+    back = np.array([0.0, 1.0, 0.0])
+    assert plausibility.arm_cost(back, back, DOWN, FRONT) == pytest.approx(30.0)
+    c = np.cos(np.radians(45))
+    side = np.array([c, c * np.sin(np.radians(75)), -c * np.cos(np.radians(75))])
+    assert plausibility.arm_cost(side, side, DOWN, FRONT) == pytest.approx(15.0 * c)
+
+
 def test_the_arms_hang_from_the_chest_and_the_legs_are_not_arms():
     sk = _figure_with_arms()
     s = solving_skeleton(sk)

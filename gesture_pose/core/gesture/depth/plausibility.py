@@ -341,17 +341,27 @@ class ArmLimits:
             away from the one the chest's front gives it (the humerus's rotation: about
             90 degrees either way from the arm hanging with the elbow flexing forward),
             degrees.
+        shoulder_extension: Largest swing of the upper arm behind the chest's down, in
+            the chest's plane of flexion (the shoulder's extension, about 60 degrees),
+            degrees.
         margin: Smallest cost difference, degrees, for a combination to replace the
             solved one.
     """
 
     humeral_twist: float = 100.0
+    shoulder_extension: float = 60.0
     margin: float = 15.0
 
 
 def arm_cost(upper: np.ndarray, forearm: np.ndarray, down: np.ndarray, front: np.ndarray,
              limits: ArmLimits = ArmLimits()) -> float:
-    """How far an elbow's plane lies outside the shoulder's rotation, degrees.
+    """How far an arm lies outside the shoulder's extension and rotation, degrees.
+
+    The shoulder: the upper arm's swing behind ``down`` beyond ``shoulder_extension``, in
+    the plane of ``down`` and the chest's front, weighted by the arm's share in that plane
+    (as the hip's extension in :func:`leg_cost`). Without it an upper arm drawn end-on
+    with the forearm hanging below was mirrored to point straight back (90 degrees of
+    extension), where the elbow's plane is within range.
 
     The elbow flexes the forearm towards the front of the upper arm. Hanging down, the
     arm's front is the chest's; raised, the front the smallest swing from ``down`` to the
@@ -369,18 +379,27 @@ def arm_cost(upper: np.ndarray, forearm: np.ndarray, down: np.ndarray, front: np
     Returns:
         The cost, degrees.
     """
+    cost = 0.0
+    d = down / np.linalg.norm(down)
+    ahead = _unit_perp(front, d)
+    if ahead is not None:
+        a, b = float(upper @ ahead), float(upper @ d)
+        extension = float(np.degrees(np.arctan2(-a, b)))
+        share = float(np.hypot(a, b) / np.linalg.norm(upper))
+        cost += max(0.0, extension - limits.shoulder_extension) * share
     swing = _swing(down, upper)
     if swing is None:
-        return 0.0  # the arm straight up: the swing's axis is a guess
+        return cost  # the arm straight up: the swing's axis is a guess
     t = upper / np.linalg.norm(upper)
     expected = _unit_perp(swing @ front, t)
     elbow = _unit_perp(forearm, t)
     if expected is None or elbow is None:
-        return 0.0
+        return cost
     twist = float(np.degrees(np.arctan2(np.cross(expected, elbow) @ t, expected @ elbow)))
     excess = np.radians(max(abs(twist) - limits.humeral_twist, 0.0))
     bend = np.radians(_angle(upper, forearm))
-    return float(np.degrees(2.0 * np.arcsin(min(1.0, np.sin(bend) * np.sin(excess / 2)))))
+    return cost + float(np.degrees(2.0 * np.arcsin(min(1.0, np.sin(bend)
+                                                          * np.sin(excess / 2)))))
 
 
 def arm_chains(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
