@@ -407,3 +407,46 @@ def test_an_arm_whose_outlines_stop_on_the_torso_at_its_root_turns_away(arm_behi
     assert slope["off"] == pytest.approx(-abs(want), abs=0.05)
     truth_joints = joints_of(s, sk, truth)
     assert np.max(np.linalg.norm(res.joints3d - truth_joints, axis=1)) < 0.02
+
+
+def test_a_contour_read_occlusion_chooses_no_side_unless_asked(monkeypatch):
+    """The left forearm swung 70 degrees towards the viewer, and an occlusion read from
+    the contours (soft, as every contour order starts) that puts its hand behind the
+    spine: a misread, as a third of them are on traced drawings. By default it chooses
+    no side: the forearm starts towards the character's front, as drawn, the order is
+    not met there and stays soft (reported, not forced). With ``occlusion_sides`` it
+    flips the forearm behind at the start, is met and enforced: the hand ends behind the
+    spine (measured 0.006 m from the truth by default, 0.59 m with the flip)."""
+    from gesture_pose.core.gesture.depth import solve3d
+    from tests.core.test_gesture_depth_labels import _turned
+    from tests.core.test_gesture_depth_sides import FORWARD, _figure_with_arms
+
+    sk = _figure_with_arms()
+    s = solving_skeleton(sk)
+    cam = front_camera()
+    pose = _turned(sk, Pose.identity(sk.n_bones), (("forearm.L", (0, 0, 1), -70.0),))
+    truth = joints_of(s, sk, pose)
+    k = list(s.bones).index(sk.index("forearm.L"))
+    elbow, hand = s.head_joint[k], s.tail_joint[k]
+    assert float((truth[hand] - truth[elbow]) @ FORWARD) < -0.2  # towards the viewer
+    emb = project_embedding(sk, s, pose, cam)
+    spine = list(s.bones).index(sk.index("spine"))
+    misread = ordering.OrderingConstraint(
+        "occlusion", "occlusion forearm.L behind spine", np.array([hand]), np.ones(1),
+        np.array([s.head_joint[spine], s.tail_joint[spine]]), np.full(2, 0.5), 0.0,
+        soft=True)
+    read = solve3d.ordering.ordering_constraints
+    monkeypatch.setattr(solve3d.ordering, "ordering_constraints",
+                        lambda *a, **kw: [*read(*a, **kw), misread])
+
+    def solved(opts: DepthOptions):
+        res = solve_pose3d(sk, emb, cam, options=opts)
+        c = next(c for c in res.ordering if c.label == misread.label)
+        off = float(np.linalg.norm(res.joints3d[hand] - res.joints3d[0] - truth[hand]
+                                   + truth[0]))
+        return c, off
+
+    kept, near = solved(DepthOptions())
+    assert kept.soft and near < 0.05
+    flipped, far = solved(DepthOptions(occlusion_sides=True))
+    assert not flipped.soft and far > 0.2
