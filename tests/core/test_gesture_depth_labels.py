@@ -336,3 +336,38 @@ def test_equally_plausible_labels_keep_the_one_drawn_more_as_at_bind():
     assert off(choice.result.joints3d) < 0.02
     right = labels.choose_labels(sk, drawn, cam)
     assert right.chosen == 0 and off(right.result.joints3d) < 0.02
+
+
+def test_the_tie_weighs_the_whole_energy_each_solve_minimized(monkeypatch):
+    """The legs swung and crossed as above, with the solves' energies rigged: the truth's
+    labels fitted a little worse in E_c + E_v than the crossed ones but with less E_b,
+    whose pull on the links drawn as at bind is what raised its E_c (the oblique lifted
+    paw's case, 0.276 against 0.254). The tie compares E_c + E_v + E_b and still takes
+    the truth's labels; with E_b as high as the drawing energy's gain it keeps the fit's."""
+    from dataclasses import replace
+
+    from gesture_pose.core.camera import Camera
+
+    sk = _figure_with_arms()
+    s = solving_skeleton(sk)
+    cam = Camera.look_at([5.0, -3.0, 1.2], [0.0, 0.0, 0.8], width=800, height=600)
+    pose = _turned(sk, Pose.identity(sk.n_bones), (
+        ("thigh.L", (1, 0, 0), -50.0), ("shin.L", (1, 0, 0), 20.0)))
+    drawn = project_embedding(sk, s, pose, cam)
+    crossed = labels.relabel(drawn, _pairs(s, "thigh.L/thigh.R below"))
+    solve = labels.solve_pose3d
+
+    def rigged(e_bind: float):
+        def run(skeleton, embedding, *args, **kwargs):
+            res = solve(skeleton, embedding, *args, **kwargs)
+            if np.array_equal(embedding.joints2d, crossed.joints2d):  # the fit's labels
+                return replace(res, e_conformity=1.0, e_foreshortening=0.0, e_bind=0.5)
+            return replace(res, e_conformity=1.1, e_foreshortening=0.0, e_bind=e_bind)
+        return run
+
+    for e_bind, taken in ((0.3, True), (0.45, False)):
+        monkeypatch.setattr(labels, "solve_pose3d", rigged(e_bind))
+        choice = labels.choose_labels(sk, crossed, cam)
+        k = choice.names.index("thigh.L/thigh.R below")
+        assert choice.energies[k] > choice.energies[0]
+        assert (choice.chosen == k) == taken

@@ -443,6 +443,8 @@ class Pose3DResult:
             sides (the legs' and the arms', ``DepthOptions.leg_limits`` and
             ``arm_limits``) and started on those sides in the second solve, when that
             solve was kept (``leg_energy_rise``); () when none was or it was not.
+        e_bind: E_b at the solution (ours, :func:`.energies.bind_term`, times
+            ``DepthOptions.bind_weight`` as the solve weighs it; 0 without it).
     """
 
     pose: Pose
@@ -465,6 +467,7 @@ class Pose3DResult:
     warnings: tuple[str, ...] = ()
     depth_sides: np.ndarray = field(default_factory=lambda: np.zeros(0))
     resided: tuple[str, ...] = ()
+    e_bind: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -1135,4 +1138,5 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
         timings=timings,
         warnings=tuple(warnings),
         depth_sides=depth_sides,
+        e_bind=energy.get("bind", 0.0),
     )
