@@ -320,3 +320,36 @@ def test_an_arm_swung_back_with_the_elbow_flexed_forward_is_solved_behind(ortho)
     assert new.resided == ("upper_arm.R",)
     assert new_depth == pytest.approx(depth, abs=0.01)
     assert new_off < 0.11
+
+
+def test_a_mirrored_arm_the_second_solve_leaves_implausible_is_not_kept(monkeypatch):
+    """The arm swung back with the elbow flexed forward (above): the first solve has the
+    upper arm in front and the elbow bent backwards (55 degrees out of range). With the
+    ranges' choice rigged to mirror the forearm alone, the second solve bends the elbow
+    further out of range (72 degrees): not more plausible by the margin, so the first
+    solve is kept, whatever the drawing energy says (``leg_energy_rise`` lifted here)."""
+    from gesture_pose.core.gesture.depth import solve3d
+
+    sk = _figure_with_arms()
+    s = solving_skeleton(sk)
+    cam = front_camera(ortho=True)
+    names = list(sk.names)
+    upper, fore = names.index("upper_arm.R"), names.index("forearm.R")
+    pose = _turned(sk, Pose.identity(sk.n_bones), upper, [0.0, 1.0, 0.0], -90.0)
+    pose = _turned(sk, pose, upper, [1.0, 0.0, 0.0], 60.0)
+    pose = _turned(sk, pose, fore, [1.0, 0.0, 0.0], -80.0)
+    emb = project_embedding(sk, s, pose, cam)
+    opts = DepthOptions(leg_energy_rise=100.0)
+    first = solve_pose3d(sk, emb, cam, options=DepthOptions(arm_limits=False))
+    assert solve_pose3d(sk, emb, cam, options=opts).resided == ("upper_arm.R",)
+    k = list(s.bones).index(fore)
+
+    def forearm_only(*args, **kwargs):
+        out = np.zeros(len(args[2]))
+        out[k] = 1.0  # the forearm away from the viewer: flexed further backwards
+        return out
+
+    monkeypatch.setattr(solve3d.plausibility, "arm_sides", forearm_only)
+    res = solve_pose3d(sk, emb, cam, options=opts)
+    assert res.resided == ()
+    np.testing.assert_allclose(res.joints3d, first.joints3d, atol=1e-9)
