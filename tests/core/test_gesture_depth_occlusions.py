@@ -409,14 +409,15 @@ def test_an_arm_whose_outlines_stop_on_the_torso_at_its_root_turns_away(arm_behi
     assert np.max(np.linalg.norm(res.joints3d - truth_joints, axis=1)) < 0.02
 
 
-def test_a_contour_read_occlusion_chooses_no_side_unless_asked(monkeypatch):
+def test_a_contour_read_occlusion_chooses_sides_unless_told_not_to(monkeypatch):
     """The left forearm swung 70 degrees towards the viewer, and an occlusion read from
     the contours (soft, as every contour order starts) that puts its hand behind the
-    spine: a misread, as a third of them are on traced drawings. By default it chooses
-    no side: the forearm starts towards the character's front, as drawn, the order is
-    not met there and stays soft (reported, not forced). With ``occlusion_sides`` it
-    flips the forearm behind at the start, is met and enforced: the hand ends behind the
-    spine (measured 0.006 m from the truth by default, 0.59 m with the flip)."""
+    spine: a misread, as a third of them are on the sample characters' traced drawings.
+    By default (``occlusion_sides``) it flips the forearm behind at the start, is met and
+    enforced: the hand ends behind the spine. Without, it chooses no side: the forearm
+    starts towards the character's front, as drawn, the order is not met there and stays
+    soft (reported, not forced). Measured 0.59 m from the truth with the flip, 0.006 m
+    without."""
     from gesture_pose.core.gesture.depth import solve3d
     from tests.core.test_gesture_depth_labels import _turned
     from tests.core.test_gesture_depth_sides import FORWARD, _figure_with_arms
@@ -446,7 +447,7 @@ def test_a_contour_read_occlusion_chooses_no_side_unless_asked(monkeypatch):
                                    + truth[0]))
         return c, off
 
-    kept, near = solved(DepthOptions())
-    assert kept.soft and near < 0.05
-    flipped, far = solved(DepthOptions(occlusion_sides=True))
+    flipped, far = solved(DepthOptions())
     assert not flipped.soft and far > 0.2
+    kept, near = solved(DepthOptions(occlusion_sides=False))
+    assert kept.soft and near < 0.05

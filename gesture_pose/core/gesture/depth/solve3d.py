@@ -226,21 +226,18 @@ class DepthOptions:
             start meets at its margin's depth (gap 0) and the QPs push in front.
         occlusion_sides: Let the inter-part occlusions read from the contours (Eq. 8,
             :mod:`.occlusions`, not enforced ones: ``enforce_contour_orders`` off) choose
-            the start's depth sides too (its greedy flips). Off (ours, since issue 4's
-            ninth session): only the embedding's own occlusions and the contour-read roots
-            (``root_junctions``) flip sides; the contour occlusions are still enforced
-            where the start, sided by the other cues, meets them. Their bones are
-            attributed through the 2D fit's joints and radii, and on the traced drawings
-            about a third of those read are wrong (the whole-Pose bench's 25 drawings: 12
-            wrong, 23 right; 11 and 25 with the 2D fit's ``oriented_conformity``; pairs
-            at equal depth not counted): a misread order flipped a limb to its wrong
-            side, and which ones are misread changes with small changes of the 2D fit (a
-            thigh read behind its partner in the oblique run with one fit, not the
-            other). 25 traced drawings, cached 2D fits: 6.176 -> 6.117 % of the height,
-            with the 2D fit's ``oriented_conformity`` 6.854 -> 6.687 (the oblique crouch
-            13.48 -> 10.79, the oblique run 16.87 -> 15.54; the front throw 10.87 ->
-            12.01 is the one clearly worse); exact embeddings and CMU poses carry no
-            contours: unchanged.
+            the start's depth sides too (its greedy flips; on by default). Off (ours,
+            issue 4's ninth session): only the embedding's own occlusions and the
+            contour-read roots (``root_junctions``) flip sides; the contour occlusions are
+            still enforced where the start, sided by the other cues, meets them. On the
+            sample characters' 25 traced drawings about a third of the occlusions read
+            are wrong (12 wrong, 23 right; 11 and 25 with the 2D fit's
+            ``oriented_conformity``; pairs at equal depth not counted) and off measured
+            better (cached 2D fits: 6.176 -> 6.117 % of the height, with
+            ``oriented_conformity`` 6.854 -> 6.687), but on the Adventurer's traced CMU
+            poses (``bench_gesture_assets``) the flips put limbs on their right sides far
+            more often: off, its whole Pose measured 23.74 -> 27.64 from the front and
+            28.28 -> 30.64 from three-quarters. So they stay on.
         contour_order_slack: How far, in mean link lengths, the start may have a
             contour-read order's back part in front of its front part for the order to
             be enforced (ours; 0 / 0.1 / 0.3: 7.66 / 7.66 / 7.69 % of the height on the
@@ -397,7 +394,7 @@ class DepthOptions:
     spine_parallel: bool = False
     turn_start: bool = True
     enforce_contour_orders: bool = False
-    occlusion_sides: bool = False
+    occlusion_sides: bool = True
     contour_order_slack: float = 0.1
     pelvis_front: float = 0.3
     arm_bend: bool = False
@@ -1007,8 +1004,8 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
     keep = link_agreement[np.asarray(embedding.solving.tail_joint)] >= opts.bind_keep \
         if opts.bind_weight > 0 else None
     tails = np.asarray(embedding.solving.tail_joint)
-    # The contour-read occlusions choose no sides unless asked (occlusion_sides): half of
-    # them are misread on traced drawings; the start meets them or they stay soft.
+    # With occlusion_sides off the contour-read occlusions choose no sides: the start
+    # meets them or they stay soft.
     flips = setup.order if opts.occlusion_sides else [
         c for c in setup.order if not (c.soft and c.kind == "occlusion")]
     current, signs = start.start_pose(skeleton, setup.jmap, setup.frame, flips,
