@@ -371,3 +371,35 @@ def test_the_tie_weighs_the_whole_energy_each_solve_minimized(monkeypatch):
         k = choice.names.index("thigh.L/thigh.R below")
         assert choice.energies[k] > choice.energies[0]
         assert (choice.chosen == k) == taken
+
+
+def test_a_relabelling_drawing_links_longer_than_their_bones_is_left_out():
+    """The crouch drawn with its legs crossed (above), out of range, so every alternative
+    is weighed: the arms exchanged below the upper arms draw each forearm from one elbow
+    to the other hand, longer than a forearm can be drawn (DepthOptions.max_drawn_ratio,
+    E_c's sign of a misplaced joint, which E_c weighs a tenth): no reading of the
+    drawing, not solved (NaN). With that bound lifted it is solved; the legs exchanged
+    below the hips are taken either way."""
+    from gesture_pose.core.gesture.depth import energies
+
+    sk = _figure_with_arms()
+    s = solving_skeleton(sk)
+    cam = front_camera()
+    crossed = labels.relabel(project_embedding(sk, s, _crouch(sk), cam),
+                             _pairs(s, "thigh.L/thigh.R below"))
+    arms = labels.relabel(crossed, _pairs(s, "upper_arm.L/upper_arm.R below"))
+    frame = labels.rest_front(crossed, cam, DepthOptions())[0]
+    a, b = energies.joint_links(np.asarray(s.joint_parent))
+    rest = np.asarray(s.rest_joints)
+    lengths = np.linalg.norm(rest[b] - rest[a], axis=1)
+
+    def too_long(e) -> int:
+        ratios = energies.foreshortening_ratios(e.joints2d, a, b, lengths, frame.scale)
+        return int(np.sum(ratios > DepthOptions().max_drawn_ratio))
+
+    assert too_long(arms) > too_long(crossed)
+    for opts, solved in ((DepthOptions(), False), (DepthOptions(max_drawn_ratio=np.inf), True)):
+        choice = labels.choose_labels(sk, crossed, cam, options=opts)
+        k = choice.names.index("upper_arm.L/upper_arm.R below")
+        assert np.isfinite(choice.costs[k]) == solved
+        assert choice.names[choice.chosen] == "thigh.L/thigh.R below"

@@ -346,7 +346,10 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     the fitted labels' pose costs less than ``limits.margin`` only the alternatives
     drawing that much more as at bind are solved. An alternative that reverses the
     drawn facing (:func:`.start.drawn_facing`: the hips exchanged whole) is not solved
-    unless ``limits.facing``: it is the other facing for the whole figure.
+    unless ``limits.facing``: it is the other facing for the whole figure. Nor is one
+    that draws more links longer than ``DepthOptions.max_drawn_ratio`` of their bones
+    than the fitted labels do: E_c weighs such links a tenth (a misplaced joint), which
+    would lower its energy for drawing worse.
 
     Args:
         skeleton: The full skeleton.
@@ -396,6 +399,16 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
         facing = np.array([start.drawn_facing(s, e.joints2d, s.rest_joints, frame)
                            for e in embeddings]) == start.drawn_facing(
                                s, embedding.joints2d, s.rest_joints, frame)
+    # A labelling that draws more links longer than their bones can be drawn
+    # (``DepthOptions.max_drawn_ratio``, E_c's sign of a misplaced joint, Eq. 5) than the
+    # fitted labels is no reading of the drawing: E_c weighs those links a tenth, which
+    # lowers its energy, not its error (ours).
+    a, b = energies.joint_links(np.asarray(s.joint_parent))
+    rest = np.asarray(s.rest_joints, float)
+    lengths = np.linalg.norm(rest[b] - rest[a], axis=1)
+    too_long = np.array([int(np.sum(energies.foreshortening_ratios(
+        e.joints2d, a, b, lengths, frame.scale) > opts.max_drawn_ratio)) for e in embeddings])
+    facing &= too_long <= too_long[0]
     gains &= facing
     plausible = costs[0] < limits.margin
     if plausible and not np.any(gains):
