@@ -266,7 +266,8 @@ def load_adventurer(corrected: bool = True):
 
     Returns:
         ``(scene, armature object, its ArmatureData read in the rest position, the meshes
-        it deforms)``; the armature is left in the pose position. Its bones have token
+        it deforms)``; the armature is left in the pose position, last evaluated in the
+        rest one (the meshes are at rest until a frame is set). Its bones have token
         lengths, so the ArmatureData is the joint skeleton (``core/joint_skeleton.py``):
         each bone from its head to its principal child's head, the pose in those frames.
     """
@@ -278,12 +279,14 @@ def load_adventurer(corrected: bool = True):
     bpy.ops.import_scene.gltf(filepath=str(ADVENTURER))
     scene = bpy.context.scene
     arm = next(o for o in scene.objects if o.type == "ARMATURE")
+    if corrected:
+        correct_zero_length_torso(scene, arm)
+    # Last evaluated in the rest position: the benches frame their cameras on the meshes as
+    # they are on return.
     arm.data.pose_position = "REST"
     bpy.context.view_layer.update()
     rest = read_armature(arm)
     arm.data.pose_position = "POSE"
-    if corrected:
-        correct_zero_length_torso(scene, arm)
     meshes = [o for o in scene.objects if o.type == "MESH" and o.find_armature() == arm]
     return scene, arm, rest, meshes
 
