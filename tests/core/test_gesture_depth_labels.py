@@ -211,17 +211,24 @@ def test_a_pelvis_turned_half_round_against_the_chest_costs_the_turn_beyond_60()
     assert labels.pose_cost(sk, s, bones, turned, FRONT, UP) == pytest.approx(40.0, abs=1e-6)
 
 
+def _crossed_crouch():
+    """The arms' figure in the crouch, seen from the front, drawn with its legs exchanged
+    below the hips: ``(skeleton, solving skeleton, camera, embedding)``."""
+    sk = _figure_with_arms()
+    s = solving_skeleton(sk)
+    cam = front_camera()
+    crossed = labels.relabel(project_embedding(sk, s, _crouch(sk), cam),
+                             _pairs(s, "thigh.L/thigh.R below"))
+    return sk, s, cam, crossed
+
+
 def test_an_alternative_whose_solve_fails_is_left_out(monkeypatch):
     """The alternatives are optional: one whose 3D solve raises SolverError (a relabelled
     drawing whose depth cues no QP meets) is not solved (NaN) and the others still
     compete; the Pose does not fail for it."""
     from gesture_pose.core.exceptions import SolverError
 
-    sk = _figure_with_arms()
-    s = solving_skeleton(sk)
-    cam = front_camera()
-    crossed = labels.relabel(project_embedding(sk, s, _crouch(sk), cam),
-                             _pairs(s, "thigh.L/thigh.R below"))
+    sk, s, cam, crossed = _crossed_crouch()
     arms = labels.relabel(crossed, _pairs(s, "upper_arm.L/upper_arm.R"))
     solve = labels.solve_pose3d
     calls = []
@@ -247,11 +254,7 @@ def test_a_relabelling_that_turns_the_drawn_facing_is_left_out():
     unless the facing is asked for; the others are."""
     from gesture_pose.core.gesture.depth import start
 
-    sk = _figure_with_arms()
-    s = solving_skeleton(sk)
-    cam = front_camera()
-    crossed = labels.relabel(project_embedding(sk, s, _crouch(sk), cam),
-                             _pairs(s, "thigh.L/thigh.R below"))
+    sk, s, cam, crossed = _crossed_crouch()
     legs = labels.relabel(crossed, _pairs(s, "thigh.L/thigh.R"))
     frame = labels.rest_front(crossed, cam, DepthOptions())[0]
     assert start.drawn_facing(s, crossed.joints2d, s.rest_joints, frame) == 1.0
@@ -275,11 +278,7 @@ def test_a_limb_a_drawn_t_junction_turned_keeps_its_labels():
 
     from gesture_pose.core.gesture.depth.ordering import OrderingConstraint
 
-    sk = _figure_with_arms()
-    s = solving_skeleton(sk)
-    cam = front_camera()
-    crossed = labels.relabel(project_embedding(sk, s, _crouch(sk), cam),
-                             _pairs(s, "thigh.L/thigh.R below"))
+    sk, s, cam, crossed = _crossed_crouch()
     plain = solve_pose3d(sk, crossed, cam)
     k = s.joint_bones.index
     turn = OrderingConstraint("root_junction", "root shin.L turns behind hips",
@@ -382,11 +381,7 @@ def test_a_relabelling_drawing_links_longer_than_their_bones_is_left_out():
     below the hips are taken either way."""
     from gesture_pose.core.gesture.depth import energies
 
-    sk = _figure_with_arms()
-    s = solving_skeleton(sk)
-    cam = front_camera()
-    crossed = labels.relabel(project_embedding(sk, s, _crouch(sk), cam),
-                             _pairs(s, "thigh.L/thigh.R below"))
+    sk, s, cam, crossed = _crossed_crouch()
     arms = labels.relabel(crossed, _pairs(s, "upper_arm.L/upper_arm.R below"))
     frame = labels.rest_front(crossed, cam, DepthOptions())[0]
     a, b = energies.joint_links(np.asarray(s.joint_parent))
