@@ -126,6 +126,35 @@ def _shin_front(thigh: np.ndarray, shin: np.ndarray, front: np.ndarray | None
     return _unit_perp(carry @ ahead, shin / np.linalg.norm(shin))
 
 
+def _extension_cost(limb: np.ndarray, down: np.ndarray, front: np.ndarray,
+                    limit: float) -> float:
+    """How far a limb's first bone swings behind its rest direction beyond ``limit``, degrees.
+
+    The hip's and the shoulder's extension: the swing of ``limb`` behind ``down`` (away
+    from ``front``) in the plane of ``down`` and ``front``, less ``limit``, weighted by the
+    share of ``limb`` in that plane (a bone held sideways, out of that plane, extends
+    little).
+
+    Args:
+        limb: The thigh's or upper arm's vector, world units, ``(3,)``.
+        down: Its rest direction carried by the pelvis or chest, ``(3,)`` (any length).
+        front: The character's front carried likewise, ``(3,)`` (its part along ``down``
+            is ignored).
+        limit: Largest extension that costs nothing, degrees.
+
+    Returns:
+        The cost, degrees (0 within range, or when ``front`` lies along ``down``).
+    """
+    d = down / np.linalg.norm(down)
+    ahead = _unit_perp(front, d)
+    if ahead is None:
+        return 0.0
+    a, b = float(limb @ ahead), float(limb @ d)
+    extension = float(np.degrees(np.arctan2(-a, b)))
+    share = float(np.hypot(a, b) / np.linalg.norm(limb))
+    return max(0.0, extension - limit) * share
+
+
 @dataclass(frozen=True)
 class LegRest:
     """A leg's rest geometry in its pelvis's frame, carried to the solved pelvis.
@@ -165,14 +194,7 @@ def leg_cost(thigh: np.ndarray, shin: np.ndarray, foot: np.ndarray | None, rest:
     Returns:
         The cost, degrees (0 within every range and straight).
     """
-    down = rest.thigh / np.linalg.norm(rest.thigh)
-    ahead = _unit_perp(rest.front, down)
-    cost = 0.0
-    if ahead is not None:
-        a, b = float(thigh @ ahead), float(thigh @ down)
-        extension = float(np.degrees(np.arctan2(-a, b)))
-        share = float(np.hypot(a, b) / np.linalg.norm(thigh))
-        cost += max(0.0, extension - limits.hip_extension) * share
+    cost = _extension_cost(thigh, rest.thigh, rest.front, limits.hip_extension)
     swing = _swing(rest.thigh, thigh)
     if swing is None:
         return cost  # the thigh turned right round: its swing's axis is a guess
@@ -379,14 +401,7 @@ def arm_cost(upper: np.ndarray, forearm: np.ndarray, down: np.ndarray, front: np
     Returns:
         The cost, degrees.
     """
-    cost = 0.0
-    d = down / np.linalg.norm(down)
-    ahead = _unit_perp(front, d)
-    if ahead is not None:
-        a, b = float(upper @ ahead), float(upper @ d)
-        extension = float(np.degrees(np.arctan2(-a, b)))
-        share = float(np.hypot(a, b) / np.linalg.norm(upper))
-        cost += max(0.0, extension - limits.shoulder_extension) * share
+    cost = _extension_cost(upper, down, front, limits.shoulder_extension)
     swing = _swing(down, upper)
     if swing is None:
         return cost  # the arm straight up: the swing's axis is a guess
