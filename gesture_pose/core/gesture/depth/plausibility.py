@@ -155,6 +155,45 @@ def _extension_cost(limb: np.ndarray, down: np.ndarray, front: np.ndarray,
     return max(0.0, extension - limit) * share
 
 
+def _twist(expected: np.ndarray, flexion: np.ndarray, axis: np.ndarray) -> float:
+    """The signed turn from ``expected`` to ``flexion`` about ``axis``, degrees.
+
+    How far a hinge's plane of flexion is turned about its parent bone (the thigh's or
+    the upper arm's rotation about its own axis), in ``[-180, 180]``.
+
+    Args:
+        expected: The direction of flexion with no rotation, unit, orthogonal to
+            ``axis``, ``(3,)``.
+        flexion: The direction the child bone flexes towards, unit, orthogonal to
+            ``axis``, ``(3,)``.
+        axis: The parent bone's unit direction, ``(3,)``.
+
+    Returns:
+        The angle, degrees, positive counterclockwise about ``axis``.
+    """
+    return float(np.degrees(np.arctan2(np.cross(expected, flexion) @ axis, expected @ flexion)))
+
+
+def _beyond_twist(twist: float, limit: float, bend: float) -> float:
+    """How far a child bone lies from the nearest direction a twist range allows, degrees.
+
+    A child bone bent by ``bend`` from its parent's axis, its plane of flexion turned
+    about that axis by ``twist``, lies on the cone of half-angle ``bend`` about the axis;
+    the nearest direction within the range is on that cone too, turned by the excess
+    ``|twist| - limit`` less, at the chord angle ``2 asin(sin(bend) sin(excess / 2))``.
+
+    Args:
+        twist: The turn of the plane of flexion (:func:`_twist`), degrees.
+        limit: Largest ``|twist|`` that costs nothing, degrees.
+        bend: Angle between the parent bone and the child, radians.
+
+    Returns:
+        The angle, degrees (0 within the range or for a straight joint).
+    """
+    excess = np.radians(max(abs(twist) - limit, 0.0))
+    return float(np.degrees(2.0 * np.arcsin(min(1.0, np.sin(bend) * np.sin(excess / 2)))))
+
+
 @dataclass(frozen=True)
 class LegRest:
     """A leg's rest geometry in its pelvis's frame, carried to the solved pelvis.
@@ -203,9 +242,8 @@ def leg_cost(thigh: np.ndarray, shin: np.ndarray, foot: np.ndarray | None, rest:
     knee = _unit_perp(-shin, t)
     bend = np.radians(_angle(thigh, shin))
     if expected is not None and knee is not None:
-        twist = float(np.degrees(np.arctan2(np.cross(expected, knee) @ t, expected @ knee)))
-        excess = np.radians(max(abs(twist) - limits.hip_twist, 0.0))
-        cost += float(np.degrees(2.0 * np.arcsin(min(1.0, np.sin(bend) * np.sin(excess / 2)))))
+        twist = _twist(expected, knee, t)
+        cost += _beyond_twist(twist, limits.hip_twist, bend)
         cost += limits.twist_share * abs(twist) * float(np.sin(bend))
     if foot is not None and rest.foot is not None:
         f = _shin_front(thigh, shin, expected)
@@ -410,11 +448,9 @@ def arm_cost(upper: np.ndarray, forearm: np.ndarray, down: np.ndarray, front: np
     elbow = _unit_perp(forearm, t)
     if expected is None or elbow is None:
         return cost
-    twist = float(np.degrees(np.arctan2(np.cross(expected, elbow) @ t, expected @ elbow)))
-    excess = np.radians(max(abs(twist) - limits.humeral_twist, 0.0))
+    twist = _twist(expected, elbow, t)
     bend = np.radians(_angle(upper, forearm))
-    return cost + float(np.degrees(2.0 * np.arcsin(min(1.0, np.sin(bend)
-                                                          * np.sin(excess / 2)))))
+    return cost + _beyond_twist(twist, limits.humeral_twist, bend)
 
 
 def arm_chains(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
