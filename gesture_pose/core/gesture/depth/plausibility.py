@@ -334,6 +334,27 @@ def _posed_legs(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
         yield chain, _leg_rest(skeleton, chain, bones, carry, front), vectors
 
 
+def _mirrorable(chain: tuple[int, ...], vectors: list[np.ndarray], movable: np.ndarray,
+                forward: np.ndarray, min_slope: float) -> list[bool]:
+    """Which of a limb's bones :func:`leg_sides` and :func:`arm_sides` may mirror.
+
+    A bone may be mirrored about the view plane when it is ``movable`` and leaves that
+    plane by at least ``min_slope`` of its length.
+
+    Args:
+        chain: The limb's solving bones, ``(k,)``.
+        vectors: Their posed head-to-tail vectors, world units, each ``(3,)``.
+        movable: Solving bones whose side may change, ``(m,)`` bool.
+        forward: The unit view direction, ``(3,)``.
+        min_slope: Smallest depth change over length of a bone that may be mirrored.
+
+    Returns:
+        One flag per bone of ``chain``.
+    """
+    return [bool(movable[k]) and abs(float(v @ forward)) >= min_slope * np.linalg.norm(v)
+            for k, v in zip(chain, vectors, strict=True)]
+
+
 def leg_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
               forward: np.ndarray, pose: Pose, front: np.ndarray, up: np.ndarray,
               movable: np.ndarray, limits: LegLimits = LegLimits(),
@@ -370,8 +391,7 @@ def leg_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
     for chain, rest, vectors in _posed_legs(skeleton, solving, bones, pose, front, up):
         if rest is None:
             continue
-        free = [bool(movable[k]) and abs(float(v @ forward)) >= min_slope * np.linalg.norm(v)
-                for k, v in zip(chain, vectors, strict=True)]
+        free = _mirrorable(chain, vectors, movable, forward, min_slope)
         options = []
         for mask in range(1 << len(chain)):
             bits = [(mask >> i) & 1 == 1 for i in range(len(chain))]
@@ -555,8 +575,7 @@ def arm_sides(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray,
     sides = np.zeros(len(bones))
     for (upper, fore), down, ahead, vectors in _posed_arms(skeleton, solving, bones, pose,
                                                           front, up):
-        free = [bool(movable[k]) and abs(float(v @ forward)) >= min_slope * np.linalg.norm(v)
-                for k, v in zip((upper, fore), vectors, strict=True)]
+        free = _mirrorable((upper, fore), vectors, movable, forward, min_slope)
         if not free[0]:
             continue
         solved = arm_cost(vectors[0], vectors[1], down, ahead, limits)
