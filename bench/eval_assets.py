@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gesture_pose.core.rotations import exp_map, rotation_between
+from gesture_pose.core.rotations import exp_map, matrix_to_quat, orthonormalize, rotation_between
 
 ASSETS = Path(__file__).resolve().parents[2] / "shared" / "eval-assets"
 ADVENTURER = ASSETS / "humanoid_quaternius_adventurer" / "Adventurer_cmu40poses.glb"
@@ -103,11 +103,10 @@ def kabsch_rotation(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
         dst: Unit directions, shape ``(n, 3)``.
 
     Returns:
-        The proper rotation ``R`` minimising ``sum |R src_i - dst_i|^2``, shape ``(3, 3)``.
+        The proper rotation ``R`` minimising ``sum |R src_i - dst_i|^2``, shape ``(3, 3)``:
+        the rotation nearest ``sum dst_i src_i^T`` (``orthonormalize``).
     """
-    u, _, vt = np.linalg.svd(np.asarray(src, float).T @ np.asarray(dst, float))
-    d = np.sign(np.linalg.det(vt.T @ u.T))
-    return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    return orthonormalize(np.asarray(dst, float).T @ np.asarray(src, float))
 
 
 def _angle(a: np.ndarray, b: np.ndarray) -> float:
@@ -243,8 +242,6 @@ def _write_quaternion(fcurves, bone: str, frame: int, basis: np.ndarray) -> None
         frame: The keyed frame.
         basis: The bone's new local rotation, ``(3, 3)``.
     """
-    from gesture_pose.core.rotations import matrix_to_quat
-
     path = f'pose.bones["{bone}"].rotation_quaternion'
     curves = [fcurves.find(path, index=i) for i in range(4)]
     points = [next(p for p in c.keyframe_points if p.co[0] == frame) for c in curves]
