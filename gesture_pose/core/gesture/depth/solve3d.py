@@ -933,14 +933,18 @@ def solve_pose3d(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     # a knee both sides can be out of range, and the mirrored limb, solved, gained
     # little (the oblique run's right arm: 17 -> 4 degrees, its joints 14.5 -> 16.9 %
     # of the height from the truth).
-    for costs, chains, margin in (
-            (plausibility.leg_costs, plausibility.leg_chains, plausibility.LegLimits().margin),
-            (plausibility.arm_costs, plausibility.arm_chains, plausibility.ArmLimits().margin)):
+    # ``n_bones``: a chain's leading solving bones (an arm chain ends with its chest).
+    for on, costs, chains, margin, n_bones in (
+            (opts.leg_limits, plausibility.leg_costs, plausibility.leg_chains,
+             plausibility.LegLimits().margin, None),
+            (opts.arm_limits, plausibility.arm_costs, plausibility.arm_chains,
+             plausibility.ArmLimits().margin, 2)):
+        if not on:
+            continue  # nothing of this kind was forced
         first = costs(skeleton, s, result.bones, result.pose, front, up)
         second = costs(skeleton, s, again.bones, again.pose, front, up)
         for i, chain in enumerate(chains(skeleton, s, result.bones, up)):
-            limb = list(chain) if chains is plausibility.leg_chains else list(chain[:2])
-            if np.any(forced[limb] != 0) and second[i] > first[i] - margin:
+            if np.any(forced[list(chain[:n_bones])] != 0) and second[i] > first[i] - margin:
                 return result
     timings = {k: v + result.timings.get(k, 0.0) for k, v in again.timings.items()}
     names = tuple(skeleton.names[int(b)] for b in result.bones[forced != 0])
