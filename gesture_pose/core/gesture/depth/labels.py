@@ -394,11 +394,12 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     # A relabelling that turns the drawn facing round (the hips exchanged whole reverse
     # the image order :func:`.start.drawn_facing` reads) is the facing in disguise, which
     # the ranges cannot tell either (module docstring): it is left out as "all pairs" is.
-    facing = np.ones(len(embeddings), bool)
+    # ``admitted``: the labellings these two rules let be solved (the fitted first).
+    admitted = np.ones(len(embeddings), bool)
     if opts.read_facing and not limits.facing:
         facing = np.array([start.drawn_facing(s, e.joints2d, s.rest_joints, frame)
-                           for e in embeddings]) == start.drawn_facing(
-                               s, embedding.joints2d, s.rest_joints, frame)
+                           for e in embeddings])
+        admitted = facing == facing[0]
     # A labelling that draws more links longer than their bones can be drawn
     # (``DepthOptions.max_drawn_ratio``, E_c's sign of a misplaced joint, Eq. 5) than the
     # fitted labels is no reading of the drawing: E_c weighs those links a tenth, which
@@ -408,8 +409,8 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     lengths = np.linalg.norm(rest[b] - rest[a], axis=1)
     too_long = np.array([int(np.sum(energies.foreshortening_ratios(
         e.joints2d, a, b, lengths, frame.scale) > opts.max_drawn_ratio)) for e in embeddings])
-    facing &= too_long <= too_long[0]
-    gains &= facing
+    admitted &= too_long <= too_long[0]
+    gains &= admitted
     plausible = costs[0] < limits.margin
     if plausible and not np.any(gains):
         # No labelling can cost ``margin`` less (costs are never negative), none draws
@@ -423,7 +424,7 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     for k, pairs in enumerate(swaps[1:], start=1):
         emb = embeddings[k]
         if (np.isin(np.asarray(pairs), turned).any() or (plausible and not gains[k])
-                or not facing[k]):
+                or not admitted[k]):
             results.append(base)
             continue
         try:
