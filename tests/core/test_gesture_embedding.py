@@ -332,8 +332,8 @@ def test_an_enumerated_solution_is_accepted_by_the_constraints_or_its_gains():
 
 
 def test_a_blocking_resolve_buys_coverage_at_the_consistency_rate():
-    # resolve_rate: 0.25 of E_match per percent, at least 0.5 (off by default).
-    params = GestureParams(resolve_rate=True)
+    # resolve_rate: 0.25 of E_match per percent, at least 0.5 (on by default).
+    params = GestureParams()
     old = (14, 0.811, 7.49)
     # The 2D bench's tail_up under oriented_conformity: 10 pairs fewer and 6.5% more
     # coverage for 2.84 more energy, which a 2% jump alone used to buy.
@@ -341,7 +341,8 @@ def test_a_blocking_resolve_buys_coverage_at_the_consistency_rate():
     assert embedding._resolves((4, 0.876, 7.49 + 1.6), old, params)   # 6.5% for 1.6
     assert embedding._resolves((4, 0.811, 7.49 + 0.5), old, params)   # the tolerance
     assert not embedding._resolves((14, 0.9, 7.6), old, params)       # not lower at all
-    assert embedding._resolves((4, 0.876, 10.33), old, GestureParams())  # any, for 2%
+    off = GestureParams(resolve_rate=False)
+    assert embedding._resolves((4, 0.876, 10.33), old, off)  # any, for 2%
 
 
 def test_the_second_seed_wins_on_energy_net_of_coverage_not_on_the_penalty():

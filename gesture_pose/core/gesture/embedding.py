@@ -84,7 +84,9 @@ class GestureParams:
         resolve_rate: A blocking re-solve that explains more of the drawing may cost at
             most ``symmetric_tolerance`` per ``coverage_gain`` more energy (the rate of
             :func:`_accepts`; ours, see :func:`_resolves`); False: any energy once it
-            explains ``coverage_gain`` more.
+            explains ``coverage_gain`` more. On by default, with
+            ``CostParams.oriented_conformity``, whose costs made the 2D bench's quadruped
+            with its tail up take such a re-solve (docs/gesture.md).
         terminal_sites: Sites per terminal joint in the paper's enumeration of terminal
             assignments (Section 5.4).
         coverage_moves: Rounds of moving limb ends onto unexplained contours in place of
@@ -132,7 +134,7 @@ class GestureParams:
     max_terminal_rounds: int = 3
     extra_terminal_rounds: int = 3
     reseed_overlaps: int = 2
-    resolve_rate: bool = False
+    resolve_rate: bool = True
     terminal_sites: int = 4
     coverage_moves: int = 3
     coverage_sites: int = 2
