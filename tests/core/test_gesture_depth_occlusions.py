@@ -166,6 +166,35 @@ def test_sample_bones_prefer_the_fits_correspondences():
     assert set(np.unique(occlusions.sample_bones(relabeled)[0])) == {2}
 
 
+def test_the_top_bone_is_the_one_whose_outline_passes_at_the_junction():
+    """The top's samples around ``q`` vote weighted by nearness: one sample of another
+    bone a step away does not outvote the sample at ``q``; and a stem ending on an outline
+    of its own bone (a hand's outline folding on itself) gives no order."""
+    _, _, emb = _crossing_drawing(arm_in_front=True)
+    eps = emb.epsilon
+    top = np.stack([np.arange(7) * eps, np.zeros(7)], 1)  # samples a step apart
+    stem = np.stack([np.full(4, 3 * eps), (0.75 - np.arange(4, 0, -1)) * eps], 1)  # to q
+    case = Embedding2D(emb.solving, emb.joints2d, emb.joint_visible, emb.joint_radius,
+                       ((),) * 3, ((),) * 3, (), (top, stem), (top, stem), 1.0, 0.0,
+                       epsilon=eps)
+    (jn,) = occlusions.find_junctions(case.contours, eps)
+    np.testing.assert_allclose(jn.point, [3 * eps, 0.0])
+
+    def attributed(top_labels, stem_bone: int):
+        labels = (np.array(top_labels), np.full(4, stem_bone))
+        (out,) = occlusions.attribute([jn], case, labels)
+        return out.stem_bone, out.top_bone
+
+    # Around q: the upper arm and the torso one step either side, the forearm at q.
+    assert attributed([-1, -1, 1, 2, 0, -1, -1], 0) == (0, 2)
+    assert attributed([-1, -1, 1, 2, 1, -1, -1], 0) == (0, 2)  # two far ones lose too
+    # The forearm's own outline at q: no order (the torso used to win the tie against
+    # the upper arm once the stem's bone was left out of the vote).
+    assert attributed([-1, -1, 1, 2, 0, -1, -1], 2) == (2, -1)
+    assert occlusions.junction_occlusions(case, [occlusions.attribute(
+        [jn], case, (np.array([-1, -1, 1, 2, 0, -1, -1]), np.full(4, 2)))[0]]) == ([], [])
+
+
 def test_bone_steps_and_tube_overlap():
     sk = tree_skeleton()
     s = solving_skeleton(sk)

@@ -15,7 +15,13 @@ is the hidden part's contour and whose top is the occluder's. The detection work
    passes nearest it (``|distance to the axis - radius|`` below ``reach`` times the
    radius). The stem's bone is the most common label of the stem's samples within one
    resampling step of its end (the end sample itself lies on the top's outline and is
-   skipped), the top's bone that of the top's samples on either side of ``q``.
+   skipped), the top's bone that of the top's samples on either side of ``q``, each
+   weighted by the inverse of its distance to ``q`` plus a quarter step (ours: the
+   sample at ``q`` decides between single samples of different bones around it). A stem
+   ending on an outline of its own bone (a hand's outline folding on itself) gives no
+   order: before, the stem's bone was left out of the top's vote, and the one sample of
+   another bone nearby made a T (the sample humanoid's hand pointing at the viewer read
+   behind its upper arm: its whole Pose 5.7 % of the height off, 3.2 without it).
 3. **Order.** Between bones at least ``min_parts`` parent-child steps apart whose drawn
    tubes overlap (an inter-part occlusion: one part passes over the other) the stem's bone
    is behind the top's at ``q``, with the tube depths of Eq. 8
@@ -199,13 +205,20 @@ def sample_bones(embedding: Embedding2D, reach: float = 0.5) -> tuple[np.ndarray
     return tuple(np.split(labels, splits))
 
 
-def _majority(labels: np.ndarray, exclude: int = -1) -> int:
-    """Most common non-negative label other than ``exclude`` (-1 when there is none)."""
-    lab = labels[(labels >= 0) & (labels != exclude)]
-    if not lab.size:
+def _majority(labels: np.ndarray, weights: np.ndarray | None = None) -> int:
+    """The non-negative label with the largest total weight (-1 when there is none).
+
+    Args:
+        labels: Labels, shape ``(k,)``; -1 is none.
+        weights: Weight of each label, shape ``(k,)``; None counts each once (ties go to
+            the smallest label).
+    """
+    keep = labels >= 0
+    if not np.any(keep):
         return -1
-    values, counts = np.unique(lab, return_counts=True)
-    return int(values[np.argmax(counts)])
+    w = np.ones(len(labels)) if weights is None else np.asarray(weights, float)
+    values, inverse = np.unique(labels[keep], return_inverse=True)
+    return int(values[np.argmax(np.bincount(inverse, weights=w[keep]))])
 
 
 def attribute(junctions: list[Junction], embedding: Embedding2D,
@@ -235,7 +248,11 @@ def attribute(junctions: list[Junction], embedding: Embedding2D,
         top_lab = labels[jn.top_contour]
         d = np.linalg.norm(top - jn.point, axis=1)
         around = d <= max(eps, float(np.partition(d, min(1, len(d) - 1))[min(1, len(d) - 1)]))
-        top_bone = _majority(top_lab[around], exclude=stem_bone)
+        # Nearer samples weigh more: the bone whose outline passes at q, not one whose
+        # sample a step away is outvoted by nobody (ties went to the lowest index).
+        top_bone = _majority(top_lab[around], 1.0 / (d[around] + 0.25 * eps))
+        if top_bone == stem_bone:
+            top_bone = -1  # a part's outline ending on its own outline: no order
         out.append(Junction(jn.stem_contour, jn.stem_end, jn.top_contour, jn.point, jn.gap,
                             stem_bone, top_bone))
     return out
