@@ -381,6 +381,11 @@ def pictures(out_dir: Path, pose_name: str = "demo") -> list[Path]:
                                name="Side")
     scene.camera = front
     bind, truth = _truth(arm, "humanoid", pose_name)
+    # Framed on the posed character, as in the bench's table: a raised hand stays in the
+    # picture and in the drawing (the bind pose's frame cut the waving hand's outline).
+    cam = _posed_camera(arm, truth, HUMANOID_VIEWS["front"])
+    front = scene.camera
+    scene.render.resolution_x = scene.render.resolution_y = 400
     meshes = read_skinned_meshes(arm, truth.skeleton)
     traced = trace_contours(meshes.deformed_vertices, meshes.triangles, cam)
     # Half a unit in front of the contours along their view rays: drawn over the character.
