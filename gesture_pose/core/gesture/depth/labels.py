@@ -84,9 +84,10 @@ class LabelLimits:
             apart differ by the 2D fit's noise: the quadruped's paw lifted in an oblique
             view, fitted with the front legs crossed, lifts with the truth's labels at
             0.352 against 0.335 for the crossed ones (5% higher; 0.80 against 4.59 % of
-            the height). At 0.1 the 25 traced drawings of ``make bench`` moved in one
-            drawing (the oblique sit, 11.23 -> 11.85, both labellings far off); at 0
-            the alternative must fit at least as well.
+            the height). At 0.1 the 25 traced drawings of ``make bench``, fitted with
+            the 2D options of the round before (``oriented_conformity`` off), moved in
+            one drawing (the oblique sit, 11.23 -> 11.85, both labellings far off); at
+            0 the alternative must fit at least as well.
     """
 
     margin: float = 15.0

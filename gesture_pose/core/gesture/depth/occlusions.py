@@ -248,8 +248,8 @@ def attribute(junctions: list[Junction], embedding: Embedding2D,
         top_lab = labels[jn.top_contour]
         d = np.linalg.norm(top - jn.point, axis=1)
         around = d <= max(eps, float(np.partition(d, min(1, len(d) - 1))[min(1, len(d) - 1)]))
-        # Nearer samples weigh more: the bone whose outline passes at q, not one whose
-        # sample a step away is outvoted by nobody (ties went to the lowest index).
+        # Nearer samples weigh more: the bone whose outline passes at q decides, not a tie
+        # between single samples a step away (which went to the lowest bone index).
         top_bone = _majority(top_lab[around], 1.0 / (d[around] + 0.25 * eps))
         if top_bone == stem_bone:
             top_bone = -1  # a part's outline ending on its own outline: no order
