@@ -350,7 +350,9 @@ def pictures(out_dir: Path, pose_name: str = "demo") -> list[Path]:
     """Render the documentation pictures of the 3D step headless (Workbench, 400 px).
 
     ``gesture3d_before_after.png``: front view of the bind pose under the traced drawing of
-    a known pose, and of the result of the whole Pose. ``gesture3d_depth.png``: side views
+    a known pose, and of the result of the whole Pose, through a camera framed on the posed
+    character (:func:`_posed_camera`, as in :func:`pose_table`; the side camera is framed
+    on the bind pose). ``gesture3d_depth.png``: side views
     of the known pose, of the lifting of its exact embedding, and of the whole Pose. Poses
     other than ``demo`` add their name to the file names.
     """
@@ -372,14 +374,13 @@ def pictures(out_dir: Path, pose_name: str = "demo") -> list[Path]:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     if not hasattr(bpy.types.Scene, "gesture_pose"):  # once per process
         gesture_pose.register()
-    arm, cam = _scene("humanoid", HUMANOID_VIEWS["front"])
+    arm, _ = _scene("humanoid", HUMANOID_VIEWS["front"])
     scene = bpy.context.scene
-    scene.render.resolution_x = scene.render.resolution_y = 400
     builders.add_light()
-    front = scene.camera
+    bind_framed = scene.camera
     side = builders.add_camera(arm, direction=(1.0, 0.0, 0.0), resolution=(400, 400),
                                name="Side")
-    scene.camera = front
+    scene.camera = bind_framed  # the scene camera _posed_camera replaces, not the side one
     bind, truth = _truth(arm, "humanoid", pose_name)
     # Framed on the posed character, as in the bench's table: a raised hand stays in the
     # picture and in the drawing (the bind pose's frame cut the waving hand's outline).

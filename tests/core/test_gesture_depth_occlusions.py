@@ -191,8 +191,11 @@ def test_the_top_bone_is_the_one_whose_outline_passes_at_the_junction():
     # The forearm's own outline at q: no order (the torso used to win the tie against
     # the upper arm once the stem's bone was left out of the vote).
     assert attributed([-1, -1, 1, 2, 0, -1, -1], 2) == (2, -1)
-    assert occlusions.junction_occlusions(case, [occlusions.attribute(
-        [jn], case, (np.array([-1, -1, 1, 2, 0, -1, -1]), np.full(4, 2)))[0]]) == ([], [])
+    # The torso's outline ending on the torso's: no part on the top side, no order.
+    own = occlusions.attribute([jn], case, (np.array([-1, -1, 1, 0, 2, -1, -1]),
+                                            np.full(4, 0)))
+    assert (own[0].stem_bone, own[0].top_bone) == (0, -1)
+    assert occlusions.junction_occlusions(case, own) == ([], [])
 
 
 def test_bone_steps_and_tube_overlap():

@@ -208,10 +208,11 @@ def sample_bones(embedding: Embedding2D, reach: float = 0.5) -> tuple[np.ndarray
 def _majority(labels: np.ndarray, weights: np.ndarray | None = None) -> int:
     """The non-negative label with the largest total weight (-1 when there is none).
 
+    Ties go to the smallest label.
+
     Args:
         labels: Labels, shape ``(k,)``; -1 is none.
-        weights: Weight of each label, shape ``(k,)``; None counts each once (ties go to
-            the smallest label).
+        weights: Weight of each label, shape ``(k,)``; None counts each once.
     """
     keep = labels >= 0
     if not np.any(keep):
@@ -479,6 +480,8 @@ def junction_occlusions(embedding: Embedding2D, junctions: list[Junction],
     tees: list[tuple[int, int]] = []
     for j in junctions:
         stem, top = j.stem_bone, j.top_bone
+        if stem < 0 or top < 0 or stem == top:
+            continue  # no part on one side (:func:`attribute`'s -1), or one part only
         if (top, stem) in pairs:
             continue  # contradictory evidence
         shared = {int(s.head_joint[stem]), int(s.tail_joint[stem])} & {
