@@ -480,8 +480,8 @@ def junction_occlusions(embedding: Embedding2D, junctions: list[Junction],
     tees: list[tuple[int, int]] = []
     for j in junctions:
         stem, top = j.stem_bone, j.top_bone
-        if stem < 0 or top < 0 or stem == top:
-            continue  # no part on one side (:func:`attribute`'s -1), or one part only
+        if stem < 0 or top < 0:
+            continue  # no part on one side (:func:`attribute`'s -1)
         if (top, stem) in pairs:
             continue  # contradictory evidence
         shared = {int(s.head_joint[stem]), int(s.tail_joint[stem])} & {
