@@ -16,6 +16,15 @@ def _is_sketch(_self, obj: bpy.types.Object) -> bool:
     return obj.type in {"GREASEPENCIL", "CURVE"}
 
 
+#: The Facing of Pose and Fit Drawing (``core.gesture.embedding.turns_for_facing``).
+DRAWING_FACING_ITEMS = [
+    ("auto", "As Seen", "The side the character shows in this view in its bind pose"),
+    ("front", "Front", "The drawing shows the character's front"),
+    ("back", "Back", "The drawing shows the character's back (its left on the image's "
+     "left)"),
+]
+
+
 class GesturePoseSettings(bpy.types.PropertyGroup):
     """The armature and sketch the Gesture Pose operators use by default."""
 
@@ -31,6 +40,12 @@ class GesturePoseSettings(bpy.types.PropertyGroup):
         "Grease Pencil object when empty)",
         type=bpy.types.Object,
         poll=_is_sketch,
+    )
+    facing: bpy.props.EnumProperty(
+        name="Facing",
+        description="Which side of the character the gesture drawing shows",
+        items=DRAWING_FACING_ITEMS,
+        default="auto",
     )
 
 

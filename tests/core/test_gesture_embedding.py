@@ -13,7 +13,7 @@ from gesture_pose.core.gesture import embedding
 from gesture_pose.core.gesture.candidates import JointCandidates, contour_candidates
 from gesture_pose.core.gesture.consistency import assign_contours
 from gesture_pose.core.gesture.costs import unary_cost
-from gesture_pose.core.gesture.embedding import GestureParams, fit_drawing
+from gesture_pose.core.gesture.embedding import GestureParams, fit_drawing, posed_joints
 from gesture_pose.core.gesture.mrf import interior_joints, joint_energy, make_problem
 from gesture_pose.core.gesture.preprocess import preprocess
 from gesture_pose.core.gesture.radii import discrete_radii, fit_sphere, joint_radii
@@ -528,3 +528,32 @@ def test_limb_re_solve_sets_hold_the_rest_and_offer_rigid_joints_their_offsets()
             assert np.any(np.all(np.isclose(got, snapped), axis=1))
         else:
             assert len(sets[j]) == 1 and np.allclose(sets[j].positions[0], placed[j])
+
+
+def test_a_character_turned_half_round_shows_its_image_mirrored():
+    skel = tree_skeleton()
+    solving = solving_skeleton(skel)
+    cam = front_camera(ortho=True)
+    world = posed_joints(solving, skel, Pose.identity(skel.n_bones))
+    turned = embedding.turned_half_round(world, cam)
+    seen, seen_turned = cam.project(world), cam.project(turned)
+    mid = seen[:, 0].mean()
+    np.testing.assert_allclose(seen_turned[:, 0], 2.0 * mid - seen[:, 0], atol=1e-6)
+    np.testing.assert_allclose(seen_turned[:, 1], seen[:, 1], atol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(turned - turned.mean(axis=0), axis=1),
+                               np.linalg.norm(world - world.mean(axis=0), axis=1))
+
+
+def test_facing_turns_the_reference_only_when_the_drawing_shows_the_other_side():
+    skel = tree_skeleton()  # its left (.L) on +x: it faces -y, the front camera
+    solving = solving_skeleton(skel)
+    cam = front_camera()
+    world = posed_joints(solving, skel, Pose.identity(skel.n_bones))
+    turns = {f: embedding.turns_for_facing(f, solving, world, cam) for f in embedding.FACINGS}
+    assert turns == {"auto": False, "front": False, "back": True}
+    away = embedding.turned_half_round(world, cam)  # now it shows its back
+    turns = {f: embedding.turns_for_facing(f, solving, away, cam) for f in embedding.FACINGS}
+    assert turns == {"auto": False, "front": True, "back": False}
+    with pytest.raises(InputError, match="Facing must be one of auto, front, back"):
+        embedding.turns_for_facing("behind", solving, world, cam)
+

@@ -36,6 +36,7 @@ from ..operator_utils import (
     resolve_sketch,
 )
 from ..panel import GesturePoseSubPanel
+from ..properties import DRAWING_FACING_ITEMS
 from ..read_armature import ArmatureData, read_armature
 from ..read_mesh import read_skinned_meshes
 from ..read_strokes import read_sketch, strokes_to_2d, write_strokes
@@ -75,7 +76,8 @@ def bind_pose(data: ArmatureData) -> Pose:
 
 def fit_scene_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
                       camera: Camera, frame: int | None = None,
-                      params: GestureParams | None = None) -> tuple[Embedding2D, int]:
+                      params: GestureParams | None = None,
+                      facing: str = "auto") -> tuple[Embedding2D, int]:
     """Read the scene once and fit the drawing (no scene change).
 
     Args:
@@ -84,6 +86,8 @@ def fit_scene_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
         camera: The view the drawing was made in.
         frame: Scene frame of the drawing (current when None).
         params: Embedding parameters (the paper's defaults when None).
+        facing: The side of the character the drawing shows, ``"auto"`` (the side its bind
+            pose shows in this view), ``"front"`` or ``"back"`` (``fit_drawing``'s).
 
     Returns:
         ``(embedding, number of strokes)``.
@@ -105,7 +109,8 @@ def fit_scene_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
     meshes = read_skinned_meshes(arm_obj, data.skeleton, state=data.skeleton.forward(bind))
     embedding = fit_drawing(strokes_to_2d(strokes, camera), data.skeleton, bind,
                             meshes.rest_vertices, camera, meshes.weights, params=params,
-                            override=data.gesture_override)
+                            override=data.gesture_override, facing=facing,
+                            object_up=data.matrix_world[:3, 2])
     return embedding, len(strokes)
 
 
@@ -228,6 +233,9 @@ class GESTUREPOSE_OT_fit_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
                                        "(empty: the one picked in the panel or selected)")
     sketch: bpy.props.StringProperty(name="Sketch", description="Grease Pencil or curve "
                                      "object holding the drawing (empty: automatic)")
+    facing: bpy.props.EnumProperty(name="Facing", items=DRAWING_FACING_ITEMS, default="auto",
+                                   description="Which side of the character the drawing "
+                                   "shows")
     show_fit: bpy.props.BoolProperty(name="Show Fit", default=True,
                                      description="Draw the fit on the sketch's "
                                      "'gesture_pose fit' layer (for a curve sketch, on a "
@@ -240,7 +248,8 @@ class GESTUREPOSE_OT_fit_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
         sketch = resolve_sketch(context, self.sketch, arm)
         camera = camera_from_context(context)
         frame = context.scene.frame_current
-        embedding, n_strokes = fit_scene_drawing(arm, sketch, camera, frame)
+        embedding, n_strokes = fit_scene_drawing(arm, sketch, camera, frame,
+                                                 facing=self.facing)
         if self.show_fit:
             data = read_armature(arm)
             depth = float(np.mean(camera.depth(data.skeleton.forward(data.pose).heads)))
@@ -301,7 +310,10 @@ class VIEW3D_PT_gesture_pose_gesture(GesturePoseSubPanel, bpy.types.Panel):
     def draw(self, context: bpy.types.Context) -> None:
         """Fit Drawing and Trace Contours buttons."""
         col = self.layout.column(align=True)
-        col.operator(GESTUREPOSE_OT_fit_drawing.bl_idname, icon="GREASEPENCIL")
+        op = col.operator(GESTUREPOSE_OT_fit_drawing.bl_idname, icon="GREASEPENCIL")
+        settings = getattr(context.scene, "gesture_pose", None)
+        if settings is not None:
+            op.facing = settings.facing  # shown under Pose
         col.operator(GESTUREPOSE_OT_trace_contours.bl_idname, icon="MOD_OUTLINE")
         op = col.operator(GESTUREPOSE_OT_trace_contours.bl_idname, text="Trace Rough Drawing")
         op.perturb = True

@@ -34,6 +34,7 @@ from ..operator_utils import (
     resolve_sketch,
 )
 from ..panel import GesturePoseSubPanel
+from ..properties import DRAWING_FACING_ITEMS
 from ..read_armature import read_armature
 from ..read_view import camera_from_context
 from ..write_pose import apply_pose
@@ -70,7 +71,8 @@ class PoseDrawingReport:
 def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
                       camera: Camera, *, frame: int | None = None, insert_keys: bool = True,
                       show_fit: bool = True, options: DepthOptions | None = None,
-                      progress: Callable[[float], None] | None = None) -> PoseDrawingReport:
+                      facing: str = "auto", progress: Callable[[float], None] | None = None
+                      ) -> PoseDrawingReport:
     """Pose an armature from a gesture drawing and key it (the whole "Pose" action).
 
     Args:
@@ -82,6 +84,9 @@ def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
         show_fit: Keep the fit shown in the sketch's fit layer (as Fit Drawing draws it);
             off removes that layer.
         options: 3D solve parameters (the paper's defaults when None).
+        facing: The side of the character the drawing shows: ``"auto"`` (the side its bind
+            pose shows in this view), ``"front"`` or ``"back"``
+            (``core.gesture.embedding.turns_for_facing``).
         progress: Called with the fraction done, in ``[0, 1]``.
 
     Returns:
@@ -95,7 +100,7 @@ def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
     frame = bpy.context.scene.frame_current if frame is None else int(frame)
     data = read_armature(arm_obj)
     tick(0.05)
-    embedding, _ = fit_scene_drawing(arm_obj, sketch_obj, camera, frame)
+    embedding, _ = fit_scene_drawing(arm_obj, sketch_obj, camera, frame, facing=facing)
     timings = {"fit": time.perf_counter() - t0}
     tick(0.8)
     t1 = time.perf_counter()
@@ -207,6 +212,9 @@ class GESTUREPOSE_OT_pose_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
                                      "holding the drawing (empty: automatic)")
     insert_keys: bpy.props.BoolProperty(name="Insert Keys", default=True,
                                         description="Key the changed bones")
+    facing: bpy.props.EnumProperty(name="Facing", items=DRAWING_FACING_ITEMS, default="auto",
+                                   description="Which side of the character the drawing "
+                                   "shows")
     show_fit: bpy.props.BoolProperty(name="Show Fit", default=True,
                                      description=f"Keep the fitted skeleton in the sketch's "
                                      f"'{FIT_LAYER}' layer (off: remove that layer)")
@@ -219,7 +227,8 @@ class GESTUREPOSE_OT_pose_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
         update, end = _progress(context)
         try:
             rep = pose_from_drawing(arm, sketch, camera, insert_keys=self.insert_keys,
-                                    show_fit=self.show_fit, progress=update)
+                                    show_fit=self.show_fit, facing=self.facing,
+                                    progress=update)
         finally:
             end()
         for warning in (*rep.warnings, *rep.embedding.warnings, *rep.result.warnings):
@@ -272,11 +281,16 @@ class VIEW3D_PT_gesture_pose_drawing(GesturePoseSubPanel, bpy.types.Panel):
     bl_options = {"HIDE_HEADER"}
 
     def draw(self, context: bpy.types.Context) -> None:
-        """The large Pose button, then Flip Depth."""
+        """The large Pose button, the drawing's Facing, then Flip Depth."""
         col = self.layout.column()
         big = col.row()
         big.scale_y = 2.0
-        big.operator(GESTUREPOSE_OT_pose_drawing.bl_idname, text="Pose", icon="ARMATURE_DATA")
+        op = big.operator(GESTUREPOSE_OT_pose_drawing.bl_idname, text="Pose",
+                          icon="ARMATURE_DATA")
+        settings = getattr(context.scene, "gesture_pose", None)
+        if settings is not None:
+            op.facing = settings.facing
+            col.prop(settings, "facing", expand=True)
         col.operator(GESTUREPOSE_OT_flip_depth.bl_idname, icon="MOD_MIRROR")
 
 

@@ -28,6 +28,8 @@ from .consistency import (
     twist_score,
 )
 from .costs import CostParams, unary_cost
+from .depth.energies import view_frame
+from .depth.start import REST_UP, front_direction, rig_up
 from .mrf import (
     MatchProblem,
     build_energy,
@@ -752,10 +754,74 @@ def _check_over_character(bbox: np.ndarray, reference: np.ndarray, char_diag: fl
             "view: draw over the character (or frame it so the drawing covers it).")
 
 
+def turned_half_round(points: np.ndarray, camera: Camera) -> np.ndarray:
+    """Points turned 180 degrees about the view's up axis through their centroid (ours).
+
+    The character seen from behind: in an orthographic view its image is mirrored left to
+    right, each joint keeping its label, so its left limbs show where the right ones did.
+
+    Args:
+        points: World positions, ``(J, 3)``.
+        camera: The view.
+
+    Returns:
+        The turned positions, world units, ``(J, 3)``.
+    """
+    pts = np.asarray(points, float)
+    up = camera.view_matrix[1, :3] / np.linalg.norm(camera.view_matrix[1, :3])
+    centre = pts.mean(axis=0)
+    rel = pts - centre
+    along = rel @ up
+    return centre + 2.0 * along[:, None] * up[None, :] - rel
+
+
+FACINGS = ("auto", "front", "back")
+
+
+def turns_for_facing(facing: str, solving: SolvingSkeleton, joints: np.ndarray,
+                     camera: Camera, object_up: np.ndarray | None = None,
+                     min_slope: float = 0.3) -> bool:
+    """Whether the drawing shows the other side of the character than ``joints`` (ours).
+
+    The character shows its back when its front (``depth.start.front_direction``: the
+    hips' or shoulders' left-to-right vector crossed with the rig's up) points away from
+    the eye by more than ``min_slope`` (17 degrees). ``"back"`` turns the character unless
+    it shows its back already; ``"front"`` turns it only when it does; so in a side view
+    (or for a rig without left/right pairs), ``"back"`` asks for the other side and
+    ``"front"`` for this one. ``"auto"`` never turns it.
+
+    Args:
+        facing: One of :data:`FACINGS`.
+        solving: The solving skeleton.
+        joints: Its joints at the current pose, world units, ``(J, 3)``.
+        camera: The view.
+        object_up: The armature object's z axis (None: world +Z).
+        min_slope: Smallest share of the front along the line of sight to count as a back
+            view.
+
+    Returns:
+        True when the fit should read the character turned half round.
+
+    Raises:
+        InputError: An unknown ``facing``.
+    """
+    if facing not in FACINGS:
+        raise InputError(f"Facing must be one of {', '.join(FACINGS)}, not {facing!r}.")
+    if facing == "auto":
+        return False
+    up = REST_UP if object_up is None else rig_up(solving, np.asarray(object_up, float))
+    centre = np.asarray(joints, float).mean(axis=0)
+    frame = view_frame(camera, centre)
+    front = front_direction(solving, np.asarray(joints, float), frame, up)
+    shows_back = front is not None and float(front @ frame.forward) > min_slope
+    return shows_back if facing == "front" else not shows_back
+
+
 def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices: np.ndarray,
                 camera: Camera, weights: np.ndarray | None = None,
                 params: GestureParams | None = None, override: np.ndarray | None = None,
-                solving: SolvingSkeleton | None = None) -> Embedding2D:
+                solving: SolvingSkeleton | None = None, facing: str = "auto",
+                object_up: np.ndarray | None = None) -> Embedding2D:
     """Embed the solving skeleton in a gesture drawing.
 
     Args:
@@ -768,6 +834,13 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
         params: Parameters (defaults: the paper's).
         override: Bones of the "Gesture" collection, ``(n,)`` bool, or None.
         solving: A prebuilt solving skeleton (overrides ``override``).
+        facing: Which side of the character the drawing shows: ``"auto"`` (the side
+            ``pose`` shows in this view), ``"front"`` or ``"back"`` (see
+            :func:`turns_for_facing`). When it is not the side ``pose`` shows, the fit's
+            left/right reference and bind-pose priors are read from ``pose`` turned half
+            round (:func:`turned_half_round`).
+        object_up: The armature object's z axis, world axes, ``(3,)``: tells the rig's up
+            (``depth.start.rig_up``; None: world +Z) for ``facing``.
 
     Returns:
         The embedding with its diagnostics.
@@ -783,6 +856,8 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
     drawing = preprocess(list(strokes), params.preprocess)
     solving = solving or solving_skeleton(skeleton, override, params.min_bone_epsilons)
     world = posed_joints(solving, skeleton, pose)
+    if turns_for_facing(facing, solving, world, camera, object_up):
+        world = turned_half_round(world, camera)
     reference = camera.project(world)
     if not np.all(np.isfinite(reference)):
         raise InputError("The character is behind the view: frame it before fitting.")
