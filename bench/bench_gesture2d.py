@@ -149,13 +149,17 @@ def adventurer_rows(quick: bool) -> list[list]:
     reader gives the joint skeleton (each bone from its head to its principal child's head,
     ``core/joint_skeleton.py``); the bind pose is its rest pose. Seen from the front (it
     faces +Y), the camera framed on each posed character (the CMU poses move and turn the
-    body, so a camera framed on the rest pose cut off feet and raised hands).
+    body, so a camera framed on the rest pose cut off feet and raised hands). Each clean
+    drawing is fitted again with the Facing an animator gives
+    (``bench_gesture_assets.view_facing``).
     """
     if not ADVENTURER.exists():
         return []
 
+    from bench.bench_gesture_assets import view_facing
     from gesture_pose.blender.operators.fit_drawing import bind_pose
     from gesture_pose.core.gesture.embedding import fit_drawing, posed_joints
+    from gesture_pose.core.gesture.solving import solving_skeleton
     from gesture_pose.core.gesture.trace import Perturbation, perturb
     from gesture_pose.core.stroke import Stroke
 
@@ -164,11 +168,16 @@ def adventurer_rows(quick: bool) -> list[list]:
     for k, data, md, camera, clean in posed_drawings(scene, arm,
                                                      (1,) if quick else range(1, 41, 4),
                                                      (0.0, 1.0, 0.0)):
-        for drawing, traced in (("clean", clean),
-                                ("perturbed", perturb(clean, Perturbation(seed=1)))):
+        up = np.asarray(arm.matrix_world)[:3, 2]
+        facing = view_facing(solving_skeleton(rest.skeleton), rest.skeleton, bind_pose(rest),
+                             data.pose, camera, up)
+        for drawing, traced, side in (("clean", clean, "auto"),
+                                      ("perturbed", perturb(clean, Perturbation(seed=1)), "auto"),
+                                      ("clean, Facing given", clean, facing)):
             t0 = time.perf_counter()
             emb = fit_drawing([Stroke(p) for p in traced.pixels], rest.skeleton,
-                              bind_pose(rest), md.rest_vertices, camera, md.weights)
+                              bind_pose(rest), md.rest_vertices, camera, md.weights,
+                              facing=side, object_up=up)
             seconds = time.perf_counter() - t0
             truth = camera.project(posed_joints(emb.solving, data.skeleton, data.pose))
             rows.append(_row(["adventurer", f"cmu {k}", "front", drawing], emb, truth,

@@ -18,6 +18,11 @@ Metrics, per drawing:
   their length in the truth, the share the result turns the same way by more than a tenth;
 - coverage of the drawing by the fit, and the seconds of the whole Pose.
 
+Each drawing is posed twice: with the Facing an animator gives (:func:`view_facing`:
+*Back* when the posed character's front, taken across its spine, turns away from the eye;
+the 3D figures of the rows), and with the default *As Seen* (the fit's left/right read from
+the bind pose, which faces the front camera; the "as seen" columns).
+
 Skipped when the eval assets are absent.
 """
 
@@ -27,15 +32,63 @@ import numpy as np
 
 from bench.eval_assets import ADVENTURER, load_adventurer, posed_drawings
 
-HEADERS = ["frame", "view", "joints", "2D error %h", "3D error %h", "bind pose %h",
-           "depth signs ok", "coverage %", "Pose s"]
+HEADERS = ["frame", "view", "facing", "joints", "2D error %h", "3D error %h",
+           "2D as seen %h", "3D as seen %h", "bind pose %h", "depth signs ok", "coverage %",
+           "Pose s"]
 
 #: Views, as directions from the character toward the camera (it faces +Y).
 VIEWS = {"front": (0.0, 1.0, 0.0), "3/4": (0.6, 1.0, 0.15)}
 
 
+def view_facing(solving, skeleton, bind_pose, truth_pose, camera, object_up) -> str:
+    """The Facing an animator gives a posed character: ``"front"`` or ``"back"``.
+
+    Back when the posed character's front turns away from the eye. Its front is its
+    left-to-right vector (the hips' or shoulders', ``start.front_direction``'s pairs)
+    crossed with its spine (the body axis from its root end to its top), turned the way
+    the bind pose's front is.
+
+    Args:
+        solving: The solving skeleton.
+        skeleton: The character's skeleton.
+        bind_pose: Its bind pose.
+        truth_pose: The drawn pose.
+        camera: The view.
+        object_up: The armature object's z axis, world axes, ``(3,)``.
+    """
+    from gesture_pose.core.gesture.depth.energies import view_frame
+    from gesture_pose.core.gesture.depth.evaluation import joints_of
+    from gesture_pose.core.gesture.depth.start import (
+        _first_pairs,
+        body_axis,
+        front_direction,
+        rig_up,
+    )
+    from gesture_pose.core.names import side_of
+
+    up = rig_up(solving, object_up)
+    axis = body_axis(solving, up)
+    pairs = _first_pairs(solving)
+    sign = np.array([1.0 if side_of(solving.joint_bones[i].rpartition(" ")[0]) == "L"
+                     else -1.0 for i in pairs[:, 0]])
+
+    def front(joints: np.ndarray) -> np.ndarray:
+        across = np.sum(sign[:, None] * (joints[pairs[:, 0]] - joints[pairs[:, 1]]), axis=0)
+        return np.cross(across, joints[axis[-1]] - joints[axis[0]])
+
+    bind = joints_of(solving, skeleton, bind_pose)
+    frame = view_frame(camera, bind.mean(axis=0))
+    turn = np.sign(front(bind) @ front_direction(solving, bind, frame, up))
+    posed = joints_of(solving, skeleton, truth_pose)
+    eye = -camera.rays(camera.project(posed[axis[:1]]))[1][0]
+    return "front" if turn * front(posed) @ eye >= 0.0 else "back"
+
+
 def _pose_row(arm, camera, view: str, k: int, truth, traced) -> list:
-    """Pose the bind-posed character from one traced drawing; one table row."""
+    """One table row: the bind-posed character posed from one traced drawing, twice.
+
+    First with the Facing an animator gives, then As Seen.
+    """
     import bpy
 
     from gesture_pose.blender.operators.fit_drawing import bind_pose
@@ -46,26 +99,36 @@ def _pose_row(arm, camera, view: str, k: int, truth, traced) -> list:
         joints_of,
         pose_error,
     )
+    from gesture_pose.core.gesture.solving import solving_skeleton
     from sample_scenes import builders
 
-    builders.reset_pose(arm)
-    bpy.context.view_layer.update()
-    sketch = builders.add_grease_pencil("Sketch", list(traced.world(camera)))
     bind = read_armature(arm)
-    rep = pose_from_drawing(arm, sketch, camera, insert_keys=False, show_fit=False)
-    bpy.context.view_layer.update()
-    bpy.data.objects.remove(sketch)
-    solving = rep.embedding.solving
+    solving = solving_skeleton(bind.skeleton)
     sk = bind.skeleton
+    facing = view_facing(solving, sk, bind_pose(bind), truth.pose, camera,
+                         np.asarray(arm.matrix_world)[:3, 2])
     true3d = joints_of(solving, sk, truth.pose)
-    got3d = joints_of(solving, sk, read_armature(arm).pose)
     true2d = camera.project(true3d)
-    fit2d = np.linalg.norm(rep.embedding.joints2d - true2d, axis=1).mean()
-    err = pose_error(true3d, got3d, sk, camera).mean_error
+    height2d = np.ptp(true2d[:, 1])
     still = pose_error(true3d, joints_of(solving, sk, bind_pose(bind)), sk, camera).mean_error
-    return [k, view, solving.n_joints, float(100.0 * fit2d / np.ptp(true2d[:, 1])), err, still,
-            depth_sign_rate(solving, true3d, got3d, camera), 100.0 * rep.embedding.coverage,
-            rep.seconds]
+    out = {}
+    for mode in (facing, "auto"):
+        builders.reset_pose(arm)
+        bpy.context.view_layer.update()
+        sketch = builders.add_grease_pencil("Sketch", list(traced.world(camera)))
+        rep = pose_from_drawing(arm, sketch, camera, insert_keys=False, show_fit=False,
+                                facing=mode)
+        bpy.context.view_layer.update()
+        bpy.data.objects.remove(sketch)
+        assert rep.embedding.solving.n_joints == solving.n_joints
+        got3d = joints_of(solving, sk, read_armature(arm).pose)
+        fit2d = np.linalg.norm(rep.embedding.joints2d - true2d, axis=1).mean()
+        out[mode] = (rep, float(100.0 * fit2d / height2d),
+                     pose_error(true3d, got3d, sk, camera).mean_error, got3d)
+    rep, fit2d, err, got3d = out[facing]
+    return [k, view, facing, solving.n_joints, fit2d, err, out["auto"][1], out["auto"][2],
+            still, depth_sign_rate(solving, true3d, got3d, camera),
+            100.0 * rep.embedding.coverage, rep.seconds]
 
 
 def pose_table(quick: bool) -> tuple[str, list[str], list[list]] | None:
@@ -89,8 +152,9 @@ def pose_table(quick: bool) -> tuple[str, list[str], list[list]] | None:
         anim.action_slot = slot
     for view in views:
         sel = [r for r in rows if r[1] == view]
-        rows.append([f"mean {view}", "", sel[0][2]] + [float(np.nanmean([r[c] for r in sel]))
-                                                      for c in range(3, 9)])
+        backs = sum(r[2] == "back" for r in sel)
+        rows.append([f"mean {view}", "", f"{backs} back", sel[0][3]]
+                    + [float(np.nanmean([r[c] for r in sel])) for c in range(4, 12)])
     height = float(np.ptp(rest.skeleton.rest_heads[:, 2]))
     return (f"Whole gesture Pose of traced CMU poses on the imported Adventurer (glTF, token "
             f"bones read as joints; {height:.2f} m)", HEADERS, rows)
