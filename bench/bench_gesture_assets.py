@@ -78,7 +78,10 @@ def view_facing(solving, skeleton, bind_pose, truth_pose, camera, object_up) -> 
 
     bind = joints_of(solving, skeleton, bind_pose)
     frame = view_frame(camera, bind.mean(axis=0))
-    turn = np.sign(front(bind) @ front_direction(solving, bind, frame, up))
+    bind_front = front_direction(solving, bind, frame, up)
+    if bind_front is None:
+        return "front"  # no left/right: Facing is not used (embedding.facing_turn)
+    turn = 1.0 if front(bind) @ bind_front >= 0.0 else -1.0
     posed = joints_of(solving, skeleton, truth_pose)
     eye = -camera.rays(camera.project(posed[axis[:1]]))[1][0]
     return "front" if turn * front(posed) @ eye >= 0.0 else "back"
@@ -102,6 +105,8 @@ def _pose_row(arm, camera, view: str, k: int, truth, traced) -> list:
     from gesture_pose.core.gesture.solving import solving_skeleton
     from sample_scenes import builders
 
+    builders.reset_pose(arm)
+    bpy.context.view_layer.update()
     bind = read_armature(arm)
     solving = solving_skeleton(bind.skeleton)
     sk = bind.skeleton

@@ -25,6 +25,14 @@ DRAWING_FACING_ITEMS = [
 ]
 
 
+def drawing_facing(op: bpy.types.Operator, context: bpy.types.Context) -> str:
+    """An operator's ``facing`` when it was given, else the panel's (``"auto"`` without)."""
+    if op.properties.is_property_set("facing"):
+        return op.facing
+    settings = getattr(context.scene, "gesture_pose", None)
+    return settings.facing if settings is not None else "auto"
+
+
 class GesturePoseSettings(bpy.types.PropertyGroup):
     """The armature and sketch the Gesture Pose operators use by default."""
 

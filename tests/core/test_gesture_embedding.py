@@ -8,6 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from gesture_pose.core.camera import Camera
 from gesture_pose.core.exceptions import InputError
 from gesture_pose.core.gesture import embedding
 from gesture_pose.core.gesture.candidates import JointCandidates, contour_candidates
@@ -535,13 +536,17 @@ def test_a_character_turned_half_round_shows_its_image_mirrored():
     solving = solving_skeleton(skel)
     cam = front_camera(ortho=True)
     world = posed_joints(solving, skel, Pose.identity(skel.n_bones))
-    turned = embedding.turned_half_round(world, cam)
+    turned = embedding.turned_half_round(world, np.array([0.0, 0.0, 2.0]))
     seen, seen_turned = cam.project(world), cam.project(turned)
     mid = seen[:, 0].mean()
     np.testing.assert_allclose(seen_turned[:, 0], 2.0 * mid - seen[:, 0], atol=1e-6)
     np.testing.assert_allclose(seen_turned[:, 1], seen[:, 1], atol=1e-6)
-    np.testing.assert_allclose(np.linalg.norm(turned - turned.mean(axis=0), axis=1),
-                               np.linalg.norm(world - world.mean(axis=0), axis=1))
+    np.testing.assert_allclose(turned[:, 2], world[:, 2])  # still standing on its feet
+
+
+def _turns(solving, joints, cam) -> dict:
+    return {f: embedding.facing_turn(f, solving, joints, cam)[0] is not None
+            for f in embedding.FACINGS}
 
 
 def test_facing_turns_the_reference_only_when_the_drawing_shows_the_other_side():
@@ -549,11 +554,30 @@ def test_facing_turns_the_reference_only_when_the_drawing_shows_the_other_side()
     solving = solving_skeleton(skel)
     cam = front_camera()
     world = posed_joints(solving, skel, Pose.identity(skel.n_bones))
-    turns = {f: embedding.turns_for_facing(f, solving, world, cam) for f in embedding.FACINGS}
-    assert turns == {"auto": False, "front": False, "back": True}
-    away = embedding.turned_half_round(world, cam)  # now it shows its back
-    turns = {f: embedding.turns_for_facing(f, solving, away, cam) for f in embedding.FACINGS}
-    assert turns == {"auto": False, "front": True, "back": False}
+    assert _turns(solving, world, cam) == {"auto": False, "front": False, "back": True}
+    up, note = embedding.facing_turn("back", solving, world, cam)
+    np.testing.assert_allclose(up, [0.0, 0.0, 1.0])
+    assert note is None
+    away = embedding.turned_half_round(world, up)  # now it shows its back
+    assert _turns(solving, away, cam) == {"auto": False, "front": True, "back": False}
     with pytest.raises(InputError, match="Facing must be one of auto, front, back"):
-        embedding.turns_for_facing("behind", solving, world, cam)
+        embedding.facing_turn("behind", solving, world, cam)
 
+
+def test_facing_is_not_used_in_a_side_view_or_without_left_and_right():
+    skel = tree_skeleton()
+    solving = solving_skeleton(skel)
+    world = posed_joints(solving, skel, Pose.identity(skel.n_bones))
+    side = Camera.look_at([6.0, -1.0, 0.8], [0.0, 0.0, 0.8], width=800, height=600)
+    for facing in ("front", "back"):
+        up, note = embedding.facing_turn(facing, solving, world, side)
+        assert up is None
+        assert note.startswith(f"Facing {facing.capitalize()} was not used: the character "
+                               "is seen from the side")
+    cam, arm, pixels, verts, _ = _arm_case()
+    chain = solving_skeleton(arm)
+    up, note = embedding.facing_turn("back", chain, posed_joints(chain, arm, Pose.identity(2)),
+                                     cam)
+    assert up is None and "has no left/right limbs" in note
+    emb = fit_drawing([Stroke(pixels)], arm, Pose.identity(2), verts, cam, facing="back")
+    assert any("Facing Back was not used" in w for w in emb.warnings)

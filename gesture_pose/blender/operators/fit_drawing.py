@@ -36,7 +36,7 @@ from ..operator_utils import (
     resolve_sketch,
 )
 from ..panel import GesturePoseSubPanel
-from ..properties import DRAWING_FACING_ITEMS
+from ..properties import DRAWING_FACING_ITEMS, drawing_facing
 from ..read_armature import ArmatureData, read_armature
 from ..read_mesh import read_skinned_meshes
 from ..read_strokes import read_sketch, strokes_to_2d, write_strokes
@@ -234,8 +234,9 @@ class GESTUREPOSE_OT_fit_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
     sketch: bpy.props.StringProperty(name="Sketch", description="Grease Pencil or curve "
                                      "object holding the drawing (empty: automatic)")
     facing: bpy.props.EnumProperty(name="Facing", items=DRAWING_FACING_ITEMS, default="auto",
+                                   options={"SKIP_SAVE"},
                                    description="Which side of the character the drawing "
-                                   "shows")
+                                   "shows (unset: the panel's Facing)")
     show_fit: bpy.props.BoolProperty(name="Show Fit", default=True,
                                      description="Draw the fit on the sketch's "
                                      "'gesture_pose fit' layer (for a curve sketch, on a "
@@ -249,7 +250,7 @@ class GESTUREPOSE_OT_fit_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
         camera = camera_from_context(context)
         frame = context.scene.frame_current
         embedding, n_strokes = fit_scene_drawing(arm, sketch, camera, frame,
-                                                 facing=self.facing)
+                                                 facing=drawing_facing(self, context))
         if self.show_fit:
             data = read_armature(arm)
             depth = float(np.mean(camera.depth(data.skeleton.forward(data.pose).heads)))

@@ -34,7 +34,7 @@ from ..operator_utils import (
     resolve_sketch,
 )
 from ..panel import GesturePoseSubPanel
-from ..properties import DRAWING_FACING_ITEMS
+from ..properties import DRAWING_FACING_ITEMS, drawing_facing
 from ..read_armature import read_armature
 from ..read_view import camera_from_context
 from ..write_pose import apply_pose
@@ -213,8 +213,9 @@ class GESTUREPOSE_OT_pose_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
     insert_keys: bpy.props.BoolProperty(name="Insert Keys", default=True,
                                         description="Key the changed bones")
     facing: bpy.props.EnumProperty(name="Facing", items=DRAWING_FACING_ITEMS, default="auto",
+                                   options={"SKIP_SAVE"},
                                    description="Which side of the character the drawing "
-                                   "shows")
+                                   "shows (unset: the panel's Facing)")
     show_fit: bpy.props.BoolProperty(name="Show Fit", default=True,
                                      description=f"Keep the fitted skeleton in the sketch's "
                                      f"'{FIT_LAYER}' layer (off: remove that layer)")
@@ -227,7 +228,7 @@ class GESTUREPOSE_OT_pose_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
         update, end = _progress(context)
         try:
             rep = pose_from_drawing(arm, sketch, camera, insert_keys=self.insert_keys,
-                                    show_fit=self.show_fit, facing=self.facing,
+                                    show_fit=self.show_fit, facing=drawing_facing(self, context),
                                     progress=update)
         finally:
             end()

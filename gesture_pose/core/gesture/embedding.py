@@ -754,53 +754,55 @@ def _check_over_character(bbox: np.ndarray, reference: np.ndarray, char_diag: fl
             "view: draw over the character (or frame it so the drawing covers it).")
 
 
-def turned_half_round(points: np.ndarray, camera: Camera) -> np.ndarray:
-    """Points turned 180 degrees about the view's up axis through their centroid (ours).
+def turned_half_round(points: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Points turned 180 degrees about the rig's up axis through their centroid (ours).
 
-    The character seen from behind: in an orthographic view its image is mirrored left to
-    right, each joint keeping its label, so its left limbs show where the right ones did.
+    The character turned round where it stands: seen through a level camera its image is
+    mirrored left to right, each joint keeping its label, so its left limbs show where
+    the right ones did.
 
     Args:
         points: World positions, ``(J, 3)``.
-        camera: The view.
+        up: The axis, world axes, ``(3,)`` (any length).
 
     Returns:
         The turned positions, world units, ``(J, 3)``.
     """
     pts = np.asarray(points, float)
-    up = camera.view_matrix[1, :3] / np.linalg.norm(camera.view_matrix[1, :3])
+    axis = np.asarray(up, float) / np.linalg.norm(up)
     centre = pts.mean(axis=0)
     rel = pts - centre
-    along = rel @ up
-    return centre + 2.0 * along[:, None] * up[None, :] - rel
+    return centre + 2.0 * (rel @ axis)[:, None] * axis[None, :] - rel
 
 
 FACINGS = ("auto", "front", "back")
 
 
-def turns_for_facing(facing: str, solving: SolvingSkeleton, joints: np.ndarray,
-                     camera: Camera, object_up: np.ndarray | None = None,
-                     min_slope: float = 0.3) -> bool:
-    """Whether the drawing shows the other side of the character than ``joints`` (ours).
+def facing_turn(facing: str, solving: SolvingSkeleton, joints: np.ndarray, camera: Camera,
+                object_up: np.ndarray | None = None, min_slope: float = 0.3
+                ) -> tuple[np.ndarray | None, str | None]:
+    """The turn the fit's reference needs for the side the drawing shows (ours).
 
-    The character shows its back when its front (``depth.start.front_direction``: the
-    hips' or shoulders' left-to-right vector crossed with the rig's up) points away from
-    the eye by more than ``min_slope`` (17 degrees). ``"back"`` turns the character unless
-    it shows its back already; ``"front"`` turns it only when it does; so in a side view
-    (or for a rig without left/right pairs), ``"back"`` asks for the other side and
-    ``"front"`` for this one. ``"auto"`` never turns it.
+    The character's front is ``depth.start.front_direction``'s (the hips' or shoulders'
+    left-to-right vector crossed with the rig's up). It shows its front when that points
+    towards the eye by more than ``min_slope`` (17 degrees out of the view plane), its
+    back when away by as much. ``"back"`` turns a character that shows its front,
+    ``"front"`` one that shows its back; ``"auto"`` never turns. In between (a side view)
+    and for a rig without left/right pairs the drawing's side is not told by a turn: no
+    turn, and a note says so.
 
     Args:
         facing: One of :data:`FACINGS`.
         solving: The solving skeleton.
         joints: Its joints at the current pose, world units, ``(J, 3)``.
         camera: The view.
-        object_up: The armature object's z axis (None: world +Z).
-        min_slope: Smallest share of the front along the line of sight to count as a back
-            view.
+        object_up: The armature object's z axis (None: world +Z); gives the rig's up
+            (``depth.start.rig_up``).
+        min_slope: Smallest share of the front along the line of sight that shows a side.
 
     Returns:
-        True when the fit should read the character turned half round.
+        ``(up, note)``: the rig's up to turn the reference about (:func:`turned_half_round`)
+        or None for no turn, and a note for the user or None.
 
     Raises:
         InputError: An unknown ``facing``.
@@ -808,13 +810,18 @@ def turns_for_facing(facing: str, solving: SolvingSkeleton, joints: np.ndarray,
     if facing not in FACINGS:
         raise InputError(f"Facing must be one of {', '.join(FACINGS)}, not {facing!r}.")
     if facing == "auto":
-        return False
+        return None, None
     up = REST_UP if object_up is None else rig_up(solving, np.asarray(object_up, float))
-    centre = np.asarray(joints, float).mean(axis=0)
-    frame = view_frame(camera, centre)
-    front = front_direction(solving, np.asarray(joints, float), frame, up)
-    shows_back = front is not None and float(front @ frame.forward) > min_slope
-    return shows_back if facing == "front" else not shows_back
+    pts = np.asarray(joints, float)
+    frame = view_frame(camera, pts.mean(axis=0))
+    front = front_direction(solving, pts, frame, up)
+    slope = 0.0 if front is None else float(front @ frame.forward)
+    if abs(slope) <= min_slope:
+        why = "has no left/right limbs" if front is None else "is seen from the side"
+        return None, (f"Facing {facing.capitalize()} was not used: the character {why}, "
+                      "so the fit reads the drawing as seen.")
+    shows_back = slope > 0.0
+    return (up if shows_back == (facing == "front") else None), None
 
 
 def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices: np.ndarray,
@@ -836,7 +843,7 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
         solving: A prebuilt solving skeleton (overrides ``override``).
         facing: Which side of the character the drawing shows: ``"auto"`` (the side
             ``pose`` shows in this view), ``"front"`` or ``"back"`` (see
-            :func:`turns_for_facing`). When it is not the side ``pose`` shows, the fit's
+            :func:`facing_turn`). When it is not the side ``pose`` shows, the fit's
             left/right reference and bind-pose priors are read from ``pose`` turned half
             round (:func:`turned_half_round`).
         object_up: The armature object's z axis, world axes, ``(3,)``: tells the rig's up
@@ -847,7 +854,7 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
 
     Raises:
         InputError: No strokes, a drawing far smaller than the character or beside it, no
-            mesh.
+            mesh, an unknown ``facing``.
     """
     params = params or GestureParams()
     timings: dict[str, float] = {}
@@ -856,8 +863,11 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
     drawing = preprocess(list(strokes), params.preprocess)
     solving = solving or solving_skeleton(skeleton, override, params.min_bone_epsilons)
     world = posed_joints(solving, skeleton, pose)
-    if turns_for_facing(facing, solving, world, camera, object_up):
-        world = turned_half_round(world, camera)
+    turn, note = facing_turn(facing, solving, world, camera, object_up)
+    if turn is not None:
+        world = turned_half_round(world, turn)
+    if note:
+        warnings.append(note)
     reference = camera.project(world)
     if not np.all(np.isfinite(reference)):
         raise InputError("The character is behind the view: frame it before fitting.")
