@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -491,6 +493,44 @@ def test_pose_is_the_first_button_of_the_tab(registered):
     assert bpy.ops.gesture_pose.flip_depth.get_rna_type().name == "Flip Depth"
     props = bpy.ops.gesture_pose.pose_drawing.get_rna_type().properties
     assert props["insert_keys"].default and props["show_fit"].default
+
+
+class _Layout:
+    """Records what a panel's ``draw`` puts in its layout."""
+
+    def __init__(self) -> None:
+        self.ops: list[tuple[str, SimpleNamespace]] = []
+        self.props: list[tuple[object, str]] = []
+        self.scale_y = 1.0
+
+    def column(self, **_kw):
+        return self
+
+    row = column
+
+    def operator(self, idname: str, **_kw) -> SimpleNamespace:
+        self.ops.append((idname, SimpleNamespace()))
+        return self.ops[-1][1]
+
+    def prop(self, data, name: str, **_kw) -> None:
+        self.props.append((data, name))
+
+
+def test_the_panel_shows_facing_and_passes_it_to_pose_and_fit_drawing(registered):
+    settings = bpy.context.scene.gesture_pose
+    settings.facing = "back"
+    layouts = {}
+    for panel in ("VIEW3D_PT_gesture_pose_drawing", "VIEW3D_PT_gesture_pose_gesture"):
+        layouts[panel] = _Layout()
+        getattr(bpy.types, panel).draw(SimpleNamespace(layout=layouts[panel]), bpy.context)
+    ops = dict(layouts["VIEW3D_PT_gesture_pose_drawing"].ops)
+    assert ops["gesture_pose.pose_drawing"].facing == "back"
+    assert (settings, "facing") in layouts["VIEW3D_PT_gesture_pose_drawing"].props
+    ops = dict(layouts["VIEW3D_PT_gesture_pose_gesture"].ops)
+    assert ops["gesture_pose.fit_drawing"].facing == "back"
+    props = bpy.ops.gesture_pose.pose_drawing.get_rna_type().properties
+    assert props["facing"].default == "auto"
+    assert {item.identifier for item in props["facing"].enum_items} == {"auto", "front", "back"}
 
 
 def test_pose_stroke_refines_a_limb_after_pose(registered, monkeypatch):
