@@ -16,7 +16,7 @@ def _is_sketch(_self, obj: bpy.types.Object) -> bool:
     return obj.type in {"GREASEPENCIL", "CURVE"}
 
 
-#: The Facing of Pose and Fit Drawing (``core.gesture.embedding.turns_for_facing``).
+#: The Facing of Pose and Fit Drawing (``core.gesture.embedding.facing_turn``).
 DRAWING_FACING_ITEMS = [
     ("auto", "As Seen", "The side the character shows in this view in its bind pose"),
     ("front", "Front", "The drawing shows the character's front"),

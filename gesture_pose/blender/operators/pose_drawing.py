@@ -86,7 +86,7 @@ def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
         options: 3D solve parameters (the paper's defaults when None).
         facing: The side of the character the drawing shows: ``"auto"`` (the side its bind
             pose shows in this view), ``"front"`` or ``"back"``
-            (``core.gesture.embedding.turns_for_facing``).
+            (``core.gesture.embedding.facing_turn``).
         progress: Called with the fraction done, in ``[0, 1]``.
 
     Returns:
