@@ -22,6 +22,8 @@ DRAWING_FACING_ITEMS = [
     ("front", "Front", "The drawing shows the character's front"),
     ("back", "Back", "The drawing shows the character's back (its left on the image's "
      "left)"),
+    ("turned", "Turned Round", "The drawing shows the character turned half round from "
+     "how this view shows it in its bind pose (a profile facing the other way)"),
 ]
 
 

@@ -7,6 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from gesture_pose.blender.operators import fit_drawing as fit_drawing_op
 from gesture_pose.blender.operators import pose_drawing
 from gesture_pose.blender.read_armature import read_armature
 from gesture_pose.blender.read_mesh import read_skinned_meshes
@@ -365,6 +366,37 @@ def test_facing_back_poses_a_character_drawn_from_behind(registered, pose_name):
         errors["back"], abs=1e-6)
 
 
+# The quadruped turned half round and traced from the side (its head where the view
+# shows its tail). Measured with the 2D fit of this commit: As Seen 50.9 % of the
+# projected height (head and tail exchanged), Turned Round 6.4.
+def test_turned_round_fits_a_profile_drawn_facing_the_other_way(registered):
+    arm, _ = builders.build_quadruped()
+    cam = camera_from_object(builders.add_camera(arm, direction=(1.0, 0.0, 0.0)),
+                             bpy.context.scene)
+    bind = read_armature(arm)
+    builders.apply_rotations(arm, {**builders.QUADRUPED_POSES["paw_forward"],
+                                   arm.data.bones[0].name: ((0.0, 0.0, 1.0), 180.0)})
+    bpy.context.view_layer.update()
+    truth = read_armature(arm)
+    meshes = read_skinned_meshes(arm, truth.skeleton)
+    traced = trace_contours(meshes.deformed_vertices, meshes.triangles, cam)
+    builders.reset_pose(arm)
+    bpy.context.view_layer.update()
+    sketch = builders.add_grease_pencil("Sketch", list(traced.world(cam)))
+    errors, notes = {}, {}
+    for facing in ("auto", "turned", "back"):
+        emb, _ = fit_drawing_op.fit_scene_drawing(arm, sketch, cam, facing=facing)
+        true2d = cam.project(posed_joints(emb.solving, bind.skeleton, truth.pose))
+        errors[facing] = (np.linalg.norm(emb.joints2d - true2d, axis=1).mean()
+                          / np.ptp(true2d[:, 1]))
+        notes[facing] = emb.warnings
+    assert errors["turned"] < 0.1, errors
+    assert errors["auto"] > 3.0 * errors["turned"], errors
+    # Front and Back have no meaning in a side view: the fit says so and reads it as seen.
+    assert errors["back"] == pytest.approx(errors["auto"])
+    assert any("Facing Back was not used" in w for w in notes["back"])
+
+
 def test_pose_on_a_traced_quadruped(registered):
     arm, sketch, cam, bind, truth = _traced("quadruped", "paw_forward", (1.0, 0.0, 0.0))
     rep = pose_drawing.pose_from_drawing(arm, sketch, cam, show_fit=False)
@@ -530,7 +562,8 @@ def test_the_panel_shows_facing_and_passes_it_to_pose_and_fit_drawing(registered
     assert ops["gesture_pose.fit_drawing"].facing == "back"
     props = bpy.ops.gesture_pose.pose_drawing.get_rna_type().properties
     assert props["facing"].default == "auto"
-    assert {item.identifier for item in props["facing"].enum_items} == {"auto", "front", "back"}
+    assert {item.identifier for item in props["facing"].enum_items} == {"auto", "front", "back",
+                                                                     "turned"}
 
 
 def test_pose_stroke_refines_a_limb_after_pose(registered, monkeypatch):

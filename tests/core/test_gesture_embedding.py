@@ -554,13 +554,15 @@ def test_facing_turns_the_reference_only_when_the_drawing_shows_the_other_side()
     solving = solving_skeleton(skel)
     cam = front_camera()
     world = posed_joints(solving, skel, Pose.identity(skel.n_bones))
-    assert _turns(solving, world, cam) == {"auto": False, "front": False, "back": True}
+    assert _turns(solving, world, cam) == {"auto": False, "front": False, "back": True,
+                                           "turned": True}
     up, note = embedding.facing_turn("back", solving, world, cam)
     np.testing.assert_allclose(up, [0.0, 0.0, 1.0])
     assert note is None
     away = embedding.turned_half_round(world, up)  # now it shows its back
-    assert _turns(solving, away, cam) == {"auto": False, "front": True, "back": False}
-    with pytest.raises(InputError, match="Facing must be one of auto, front, back"):
+    assert _turns(solving, away, cam) == {"auto": False, "front": True, "back": False,
+                                          "turned": True}
+    with pytest.raises(InputError, match="Facing must be one of auto, front, back, turned"):
         embedding.facing_turn("behind", solving, world, cam)
 
 
@@ -574,6 +576,9 @@ def test_facing_is_not_used_in_a_side_view_or_without_left_and_right():
         assert up is None
         assert note.startswith(f"Facing {facing.capitalize()} was not used: the character "
                                "is seen from the side")
+    up, note = embedding.facing_turn("turned", solving, world, side)  # a profile turned
+    np.testing.assert_allclose(up, [0.0, 0.0, 1.0])
+    assert note is None
     cam, arm, pixels, verts, _ = _arm_case()
     chain = solving_skeleton(arm)
     up, note = embedding.facing_turn("back", chain, posed_joints(chain, arm, Pose.identity(2)),

@@ -87,7 +87,8 @@ def fit_scene_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
         frame: Scene frame of the drawing (current when None).
         params: Embedding parameters (the paper's defaults when None).
         facing: The side of the character the drawing shows, ``"auto"`` (the side its bind
-            pose shows in this view), ``"front"`` or ``"back"`` (``fit_drawing``'s).
+            pose shows in this view), ``"front"``, ``"back"`` or ``"turned"``
+            (``fit_drawing``'s).
 
     Returns:
         ``(embedding, number of strokes)``.

@@ -85,7 +85,7 @@ def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
             off removes that layer.
         options: 3D solve parameters (the paper's defaults when None).
         facing: The side of the character the drawing shows: ``"auto"`` (the side its bind
-            pose shows in this view), ``"front"`` or ``"back"``
+            pose shows in this view), ``"front"``, ``"back"`` or ``"turned"``
             (``core.gesture.embedding.facing_turn``).
         progress: Called with the fraction done, in ``[0, 1]``.
 
@@ -291,7 +291,7 @@ class VIEW3D_PT_gesture_pose_drawing(GesturePoseSubPanel, bpy.types.Panel):
         settings = getattr(context.scene, "gesture_pose", None)
         if settings is not None:
             op.facing = settings.facing
-            col.prop(settings, "facing", expand=True)
+            col.prop(settings, "facing")
         col.operator(GESTUREPOSE_OT_flip_depth.bl_idname, icon="MOD_MIRROR")
 
 

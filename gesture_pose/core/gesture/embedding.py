@@ -775,7 +775,7 @@ def turned_half_round(points: np.ndarray, up: np.ndarray) -> np.ndarray:
     return centre + 2.0 * (rel @ axis)[:, None] * axis[None, :] - rel
 
 
-FACINGS = ("auto", "front", "back")
+FACINGS = ("auto", "front", "back", "turned")
 
 
 def facing_turn(facing: str, solving: SolvingSkeleton, joints: np.ndarray, camera: Camera,
@@ -787,9 +787,10 @@ def facing_turn(facing: str, solving: SolvingSkeleton, joints: np.ndarray, camer
     left-to-right vector crossed with the rig's up). It shows its front when that points
     towards the eye by more than ``min_slope`` (17 degrees out of the view plane), its
     back when away by as much. ``"back"`` turns a character that shows its front,
-    ``"front"`` one that shows its back; ``"auto"`` never turns. In between (a side view)
-    and for a rig without left/right pairs the drawing's side is not told by a turn: no
-    turn, and a note says so.
+    ``"front"`` one that shows its back; ``"auto"`` never turns, ``"turned"`` always (the
+    drawing shows the side the view does not: a profile facing the other way). In between
+    (a side view) and for a rig without left/right pairs, front and back are not told:
+    no turn, and a note says so.
 
     Args:
         facing: One of :data:`FACINGS`.
@@ -812,6 +813,8 @@ def facing_turn(facing: str, solving: SolvingSkeleton, joints: np.ndarray, camer
     if facing == "auto":
         return None, None
     up = REST_UP if object_up is None else rig_up(solving, np.asarray(object_up, float))
+    if facing == "turned":
+        return up, None
     pts = np.asarray(joints, float)
     frame = view_frame(camera, pts.mean(axis=0))
     front = front_direction(solving, pts, frame, up)
@@ -819,7 +822,7 @@ def facing_turn(facing: str, solving: SolvingSkeleton, joints: np.ndarray, camer
     if abs(slope) <= min_slope:
         why = "has no left/right limbs" if front is None else "is seen from the side"
         return None, (f"Facing {facing.capitalize()} was not used: the character {why}, "
-                      "so the fit reads the drawing as seen.")
+                      "so the fit reads the drawing as seen (Turned Round turns it).")
     shows_back = slope > 0.0
     return (up if shows_back == (facing == "front") else None), None
 
@@ -842,7 +845,7 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
         override: Bones of the "Gesture" collection, ``(n,)`` bool, or None.
         solving: A prebuilt solving skeleton (overrides ``override``).
         facing: Which side of the character the drawing shows: ``"auto"`` (the side
-            ``pose`` shows in this view), ``"front"`` or ``"back"`` (see
+            ``pose`` shows in this view), ``"front"``, ``"back"`` or ``"turned"`` (see
             :func:`facing_turn`). When it is not the side ``pose`` shows, the fit's
             left/right reference and bind-pose priors are read from ``pose`` turned half
             round (:func:`turned_half_round`).
