@@ -115,18 +115,23 @@ def test_lifting_recovers_known_poses(registered, kind, pose_name, direction, li
     assert res.timings["total"] > 0.0  # speed is the benchmark's (make bench), not a test's
 
 
+def _sketch_of(arm, truth, cam):
+    """The posed ``arm`` (its pose read as ``truth``) traced through ``cam`` into a sketch;
+    the armature is then put back at rest."""
+    meshes = read_skinned_meshes(arm, truth.skeleton)
+    traced = trace_contours(meshes.deformed_vertices, meshes.triangles, cam)
+    builders.reset_pose(arm)
+    bpy.context.view_layer.update()
+    return builders.add_grease_pencil("Sketch", list(traced.world(cam)))
+
+
 def _traced(kind: str, pose_name: str, direction):
     """A character posed, traced into a sketch, then put back at rest (the bind pose)."""
     arm, cam, bind, truth = _character(kind, pose_name, direction)
     poses = _HUMANOID if kind == "humanoid" else builders.QUADRUPED_POSES
     builders.apply_rotations(arm, poses[pose_name])
     bpy.context.view_layer.update()
-    meshes = read_skinned_meshes(arm, truth.skeleton)
-    traced = trace_contours(meshes.deformed_vertices, meshes.triangles, cam)
-    builders.reset_pose(arm)
-    bpy.context.view_layer.update()
-    sketch = builders.add_grease_pencil("Sketch", list(traced.world(cam)))
-    return arm, sketch, cam, bind, truth
+    return arm, _sketch_of(arm, truth, cam), cam, bind, truth
 
 
 # Oblique views, where most bones leave the view plane. Measured with the 2D fit of this
@@ -321,24 +326,28 @@ def test_pose_operator_on_a_traced_drawing(traced_humanoid):
                                atol=1e-6)
 
 
+def _traced_turned_round(arm, direction, rotations: dict):
+    """``arm`` posed by ``rotations`` with its root turned half round about +Z, traced
+    through a camera from ``direction`` into a sketch, then put back at rest."""
+    cam = camera_from_object(builders.add_camera(arm, direction=direction),
+                             bpy.context.scene)
+    bind = read_armature(arm)
+    builders.apply_rotations(arm, {**rotations,
+                                   arm.data.bones[0].name: ((0.0, 0.0, 1.0), 180.0)})
+    bpy.context.view_layer.update()
+    truth = read_armature(arm)
+    return arm, _sketch_of(arm, truth, cam), cam, bind, truth
+
+
 # The humanoid turned half round (its back to the front camera), traced. Measured with
 # the Pose of this commit: as seen (the fit's left/right from the bind pose, which faces
 # the camera) 14.6 and 24.1 % of the height, Facing Back 4.5 and 7.3.
 @pytest.mark.parametrize("pose_name", ["raise_left_arm", "step"])
 def test_facing_back_poses_a_character_drawn_from_behind(registered, pose_name):
     arm, _ = builders.build_humanoid()
-    cam = camera_from_object(builders.add_camera(arm, direction=FRONT), bpy.context.scene)
     bpy.context.scene.frame_set(FRAME)
-    bind = read_armature(arm)
-    builders.apply_rotations(arm, {**builders.HUMANOID_POSES[pose_name],
-                                   "pelvis": ((0.0, 0.0, 1.0), 180.0)})
-    bpy.context.view_layer.update()
-    truth = read_armature(arm)
-    meshes = read_skinned_meshes(arm, truth.skeleton)
-    traced = trace_contours(meshes.deformed_vertices, meshes.triangles, cam)
-    builders.reset_pose(arm)
-    bpy.context.view_layer.update()
-    sketch = builders.add_grease_pencil("Sketch", list(traced.world(cam)))
+    arm, sketch, cam, bind, truth = _traced_turned_round(arm, FRONT,
+                                                         builders.HUMANOID_POSES[pose_name])
     solving = solving_skeleton(bind.skeleton)
     errors = {}
     for facing in ("auto", "back"):
@@ -371,18 +380,8 @@ def test_facing_back_poses_a_character_drawn_from_behind(registered, pose_name):
 # projected height (head and tail exchanged), Turned Round 6.4.
 def test_turned_round_fits_a_profile_drawn_facing_the_other_way(registered):
     arm, _ = builders.build_quadruped()
-    cam = camera_from_object(builders.add_camera(arm, direction=(1.0, 0.0, 0.0)),
-                             bpy.context.scene)
-    bind = read_armature(arm)
-    builders.apply_rotations(arm, {**builders.QUADRUPED_POSES["paw_forward"],
-                                   arm.data.bones[0].name: ((0.0, 0.0, 1.0), 180.0)})
-    bpy.context.view_layer.update()
-    truth = read_armature(arm)
-    meshes = read_skinned_meshes(arm, truth.skeleton)
-    traced = trace_contours(meshes.deformed_vertices, meshes.triangles, cam)
-    builders.reset_pose(arm)
-    bpy.context.view_layer.update()
-    sketch = builders.add_grease_pencil("Sketch", list(traced.world(cam)))
+    arm, sketch, cam, bind, truth = _traced_turned_round(
+        arm, (1.0, 0.0, 0.0), builders.QUADRUPED_POSES["paw_forward"])
     errors, notes = {}, {}
     for facing in ("auto", "turned", "back"):
         emb, _ = fit_drawing_op.fit_scene_drawing(arm, sketch, cam, facing=facing)
