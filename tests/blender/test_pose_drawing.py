@@ -532,6 +532,7 @@ class _Layout:
     def __init__(self) -> None:
         self.ops: list[tuple[str, SimpleNamespace]] = []
         self.props: list[tuple[object, str]] = []
+        self.prop_options: dict[str, dict] = {}
         self.scale_y = 1.0
 
     def column(self, **_kw):
@@ -543,8 +544,9 @@ class _Layout:
         self.ops.append((idname, SimpleNamespace()))
         return self.ops[-1][1]
 
-    def prop(self, data, name: str, **_kw) -> None:
+    def prop(self, data, name: str, **kw) -> None:
         self.props.append((data, name))
+        self.prop_options[name] = kw
 
 
 def test_the_panel_shows_facing_and_passes_it_to_pose_and_fit_drawing(registered):
@@ -557,6 +559,8 @@ def test_the_panel_shows_facing_and_passes_it_to_pose_and_fit_drawing(registered
     ops = dict(layouts["VIEW3D_PT_gesture_pose_drawing"].ops)
     assert ops["gesture_pose.pose_drawing"].facing == "back"
     assert (settings, "facing") in layouts["VIEW3D_PT_gesture_pose_drawing"].props
+    # A menu: four choices would not fit the sidebar's width as buttons.
+    assert "expand" not in layouts["VIEW3D_PT_gesture_pose_drawing"].prop_options["facing"]
     ops = dict(layouts["VIEW3D_PT_gesture_pose_gesture"].ops)
     assert ops["gesture_pose.fit_drawing"].facing == "back"
     props = bpy.ops.gesture_pose.pose_drawing.get_rna_type().properties

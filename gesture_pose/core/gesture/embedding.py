@@ -788,7 +788,8 @@ def facing_turn(facing: str, solving: SolvingSkeleton, joints: np.ndarray, camer
     towards the eye by more than ``min_slope`` (17 degrees out of the view plane), its
     back when away by as much. ``"back"`` turns a character that shows its front,
     ``"front"`` one that shows its back; ``"auto"`` never turns, ``"turned"`` always (the
-    drawing shows the side the view does not: a profile facing the other way). In between
+    character turned half round about its up: in a side view, a profile facing the other
+    way). In between
     (a side view) and for a rig without left/right pairs, front and back are not told:
     no turn, and a note says so.
 
