@@ -165,18 +165,18 @@ def adventurer_rows(quick: bool) -> list[list]:
 
     scene, arm, rest, _ = load_adventurer()
     rows = []
+    up = np.asarray(arm.matrix_world)[:3, 2]
+    solving, bind = solving_skeleton(rest.skeleton), bind_pose(rest)
     for k, data, md, camera, clean in posed_drawings(scene, arm,
                                                      (1,) if quick else range(1, 41, 4),
                                                      (0.0, 1.0, 0.0)):
-        up = np.asarray(arm.matrix_world)[:3, 2]
-        facing = view_facing(solving_skeleton(rest.skeleton), rest.skeleton, bind_pose(rest),
-                             data.pose, camera, up)
+        facing = view_facing(solving, rest.skeleton, data.pose, camera, up)
         for drawing, traced, side in (("clean", clean, "auto"),
                                       ("perturbed", perturb(clean, Perturbation(seed=1)), "auto"),
                                       ("clean, Facing given", clean, facing)):
             t0 = time.perf_counter()
             emb = fit_drawing([Stroke(p) for p in traced.pixels], rest.skeleton,
-                              bind_pose(rest), md.rest_vertices, camera, md.weights,
+                              bind, md.rest_vertices, camera, md.weights,
                               facing=side, object_up=up)
             seconds = time.perf_counter() - t0
             truth = camera.project(posed_joints(emb.solving, data.skeleton, data.pose))

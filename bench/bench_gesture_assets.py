@@ -40,51 +40,32 @@ HEADERS = ["frame", "view", "facing", "joints", "2D error %h", "3D error %h",
 VIEWS = {"front": (0.0, 1.0, 0.0), "3/4": (0.6, 1.0, 0.15)}
 
 
-def view_facing(solving, skeleton, bind_pose, truth_pose, camera, object_up) -> str:
+def view_facing(solving, skeleton, truth_pose, camera, object_up) -> str:
     """The Facing an animator gives a posed character: ``"front"`` or ``"back"``.
 
-    Back when the posed character's front turns away from the eye. Its front is its
-    left-to-right vector (the hips' or shoulders', ``start.front_direction``'s pairs)
-    crossed with its spine (the body axis from its root end to its top), turned the way
-    the bind pose's front is.
+    Back when the posed character's front turns away from the eye. Its front is
+    ``start.front_direction``'s (the hips' or shoulders' left-to-right vector) crossed with
+    its spine (the body axis from its root end to its top) instead of the rig's up.
 
     Args:
         solving: The solving skeleton.
         skeleton: The character's skeleton.
-        bind_pose: Its bind pose.
         truth_pose: The drawn pose.
         camera: The view.
         object_up: The armature object's z axis, world axes, ``(3,)``.
     """
     from gesture_pose.core.gesture.depth.energies import view_frame
     from gesture_pose.core.gesture.depth.evaluation import joints_of
-    from gesture_pose.core.gesture.depth.start import (
-        _first_pairs,
-        body_axis,
-        front_direction,
-        rig_up,
-    )
-    from gesture_pose.core.names import side_of
+    from gesture_pose.core.gesture.depth.start import body_axis, front_direction, rig_up
 
-    up = rig_up(solving, object_up)
-    axis = body_axis(solving, up)
-    pairs = _first_pairs(solving)
-    sign = np.array([1.0 if side_of(solving.joint_bones[i].rpartition(" ")[0]) == "L"
-                     else -1.0 for i in pairs[:, 0]])
-
-    def front(joints: np.ndarray) -> np.ndarray:
-        across = np.sum(sign[:, None] * (joints[pairs[:, 0]] - joints[pairs[:, 1]]), axis=0)
-        return np.cross(across, joints[axis[-1]] - joints[axis[0]])
-
-    bind = joints_of(solving, skeleton, bind_pose)
-    frame = view_frame(camera, bind.mean(axis=0))
-    bind_front = front_direction(solving, bind, frame, up)
-    if bind_front is None:
-        return "front"  # no left/right: Facing is not used (embedding.facing_turn)
-    turn = 1.0 if front(bind) @ bind_front >= 0.0 else -1.0
+    axis = body_axis(solving, rig_up(solving, object_up))
     posed = joints_of(solving, skeleton, truth_pose)
+    spine = posed[axis[-1]] - posed[axis[0]]
+    front = front_direction(solving, posed, view_frame(camera, posed.mean(axis=0)), spine)
+    if front is None:
+        return "front"  # no left/right: Facing is not used (embedding.facing_turn)
     eye = -camera.rays(camera.project(posed[axis[:1]]))[1][0]
-    return "front" if turn * front(posed) @ eye >= 0.0 else "back"
+    return "front" if front @ eye >= 0.0 else "back"
 
 
 def _pose_row(arm, camera, view: str, k: int, truth, traced) -> list:
@@ -110,8 +91,7 @@ def _pose_row(arm, camera, view: str, k: int, truth, traced) -> list:
     bind = read_armature(arm)
     solving = solving_skeleton(bind.skeleton)
     sk = bind.skeleton
-    facing = view_facing(solving, sk, bind_pose(bind), truth.pose, camera,
-                         np.asarray(arm.matrix_world)[:3, 2])
+    facing = view_facing(solving, sk, truth.pose, camera, np.asarray(arm.matrix_world)[:3, 2])
     true3d = joints_of(solving, sk, truth.pose)
     true2d = camera.project(true3d)
     height2d = np.ptp(true2d[:, 1])

@@ -789,9 +789,8 @@ def facing_turn(facing: str, solving: SolvingSkeleton, joints: np.ndarray, camer
     back when away by as much. ``"back"`` turns a character that shows its front,
     ``"front"`` one that shows its back; ``"auto"`` never turns, ``"turned"`` always (the
     character turned half round about its up: in a side view, a profile facing the other
-    way). In between
-    (a side view) and for a rig without left/right pairs, front and back are not told:
-    no turn, and a note says so.
+    way). In between (a side view) and for a rig without left/right pairs, front and back
+    are not told: no turn, and a note says so.
 
     Args:
         facing: One of :data:`FACINGS`.
