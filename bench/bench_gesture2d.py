@@ -150,13 +150,13 @@ def adventurer_rows(quick: bool) -> list[list]:
     ``core/joint_skeleton.py``); the bind pose is its rest pose. Seen from the front (it
     faces +Y), the camera framed on each posed character (the CMU poses move and turn the
     body, so a camera framed on the rest pose cut off feet and raised hands). Each clean
-    drawing is fitted again with the Facing an animator gives
-    (``bench_gesture_assets.view_facing``).
+    drawing is fitted again with the Facing and Body Up an animator gives
+    (``bench_gesture_assets.view_facing`` and ``view_body_up``).
     """
     if not ADVENTURER.exists():
         return []
 
-    from bench.bench_gesture_assets import view_facing
+    from bench.bench_gesture_assets import view_body_up, view_facing
     from gesture_pose.blender.operators.fit_drawing import bind_pose
     from gesture_pose.core.gesture.embedding import fit_drawing, posed_joints
     from gesture_pose.core.gesture.solving import solving_skeleton
@@ -171,13 +171,15 @@ def adventurer_rows(quick: bool) -> list[list]:
                                                      (1,) if quick else range(1, 41, 4),
                                                      (0.0, 1.0, 0.0)):
         facing = view_facing(solving, rest.skeleton, data.pose, camera, up)
-        for drawing, traced, side in (("clean", clean, "auto"),
-                                      ("perturbed", perturb(clean, Perturbation(seed=1)), "auto"),
-                                      ("clean, Facing given", clean, facing)):
+        body_up = view_body_up(solving, rest.skeleton, data.pose, bind, camera, up)
+        for drawing, traced, side, roll in (
+                ("clean", clean, "auto", "up"),
+                ("perturbed", perturb(clean, Perturbation(seed=1)), "auto", "up"),
+                ("clean, Facing and Body Up given", clean, facing, body_up)):
             t0 = time.perf_counter()
             emb = fit_drawing([Stroke(p) for p in traced.pixels], rest.skeleton,
                               bind, md.rest_vertices, camera, md.weights,
-                              facing=side, object_up=up)
+                              facing=side, object_up=up, body_up=roll)
             seconds = time.perf_counter() - t0
             truth = camera.project(posed_joints(emb.solving, data.skeleton, data.pose))
             rows.append(_row(["adventurer", f"cmu {k}", "front", drawing], emb, truth,

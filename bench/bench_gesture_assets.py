@@ -18,10 +18,13 @@ Metrics, per drawing:
   their length in the truth, the share the result turns the same way by more than a tenth;
 - coverage of the drawing by the fit, and the seconds of the whole Pose.
 
-Each drawing is posed twice: with the Facing an animator gives (:func:`view_facing`:
-*Back* when the posed character's front, taken across its spine, turns away from the eye;
-the 3D figures of the rows), and with the default *As Seen* (the fit's left/right read from
-the bind pose, which faces the front camera; the "as seen" columns).
+Each drawing is posed twice: with the Facing and Body Up an animator gives (the 3D figures
+of the rows), and with the defaults, Facing *As Seen* and Body Up *Up* (the fit's left/right
+and up read from the bind pose, which stands facing the front camera; the "as seen"
+columns). The animator's Facing is :func:`view_facing` (*Back* when the posed character's
+front, taken across its spine, turns away from the eye); their Body Up is
+:func:`view_body_up` (the quarter turn nearest the drawn spine's turn from the bind
+pose's in the image).
 
 Skipped when the eval assets are absent.
 """
@@ -32,7 +35,7 @@ import numpy as np
 
 from bench.eval_assets import ADVENTURER, load_adventurer, posed_drawings
 
-HEADERS = ["frame", "view", "facing", "joints", "2D error %h", "3D error %h",
+HEADERS = ["frame", "view", "facing", "body up", "joints", "2D error %h", "3D error %h",
            "2D as seen %h", "3D as seen %h", "bind pose %h", "depth signs ok", "coverage %",
            "Pose s"]
 
@@ -68,10 +71,39 @@ def view_facing(solving, skeleton, truth_pose, camera, object_up) -> str:
     return "front" if front @ eye >= 0.0 else "back"
 
 
+def view_body_up(solving, skeleton, truth_pose, bind_pose, camera, object_up) -> str:
+    """The Body Up an animator gives a posed character (``"up"``, ``"left"``, ...).
+
+    The quarter turn nearest the angle from the bind pose's spine (the body axis from
+    its root end to its top) to the posed one's, in the image (anticlockwise as seen:
+    ``core.gesture.depth.start.BODY_UPS``).
+
+    Args:
+        solving: The solving skeleton.
+        skeleton: The character's skeleton.
+        truth_pose: The drawn pose.
+        bind_pose: The bind pose.
+        camera: The view.
+        object_up: The armature object's z axis, world axes, ``(3,)``.
+
+    Returns:
+        The Body Up.
+    """
+    from gesture_pose.core.gesture.depth.evaluation import joints_of
+    from gesture_pose.core.gesture.depth.start import BODY_UPS, body_axis, rig_up
+
+    axis = body_axis(solving, rig_up(solving, object_up))
+    ends = [camera.project(joints_of(solving, skeleton, p)[axis[[0, -1]]])
+            for p in (bind_pose, truth_pose)]
+    (bx, by), (tx, ty) = (e[1] - e[0] for e in ends)
+    turn = np.degrees(np.arctan2(bx * ty - by * tx, bx * tx + by * ty))
+    return min(BODY_UPS, key=lambda b: abs((turn - BODY_UPS[b] + 180.0) % 360.0 - 180.0))
+
+
 def _pose_row(arm, camera, view: str, k: int, truth, traced) -> list:
     """One table row: the bind-posed character posed from one traced drawing, twice.
 
-    First with the Facing an animator gives, then As Seen.
+    First with the Facing and Body Up an animator gives, then As Seen and Up.
     """
     import bpy
 
@@ -91,18 +123,20 @@ def _pose_row(arm, camera, view: str, k: int, truth, traced) -> list:
     bind = read_armature(arm)
     solving = solving_skeleton(bind.skeleton)
     sk = bind.skeleton
-    facing = view_facing(solving, sk, truth.pose, camera, np.asarray(arm.matrix_world)[:3, 2])
+    object_up = np.asarray(arm.matrix_world)[:3, 2]
+    facing = view_facing(solving, sk, truth.pose, camera, object_up)
+    body_up = view_body_up(solving, sk, truth.pose, bind_pose(bind), camera, object_up)
     true3d = joints_of(solving, sk, truth.pose)
     true2d = camera.project(true3d)
     height2d = np.ptp(true2d[:, 1])
     still = pose_error(true3d, joints_of(solving, sk, bind_pose(bind)), sk, camera).mean_error
     out = {}
-    for mode in (facing, "auto"):
+    for mode, up in (("given", body_up), ("auto", "up")):
         builders.reset_pose(arm)
         bpy.context.view_layer.update()
         sketch = builders.add_grease_pencil("Sketch", list(traced.world(camera)))
         rep = pose_from_drawing(arm, sketch, camera, insert_keys=False, show_fit=False,
-                                facing=mode)
+                                facing=facing if mode == "given" else "auto", body_up=up)
         bpy.context.view_layer.update()
         bpy.data.objects.remove(sketch)
         assert rep.embedding.solving.n_joints == solving.n_joints
@@ -110,8 +144,8 @@ def _pose_row(arm, camera, view: str, k: int, truth, traced) -> list:
         fit2d = np.linalg.norm(rep.embedding.joints2d - true2d, axis=1).mean()
         out[mode] = (rep, float(100.0 * fit2d / height2d),
                      pose_error(true3d, got3d, sk, camera).mean_error, got3d)
-    rep, fit2d, err, got3d = out[facing]
-    return [k, view, facing, solving.n_joints, fit2d, err, out["auto"][1], out["auto"][2],
+    rep, fit2d, err, got3d = out["given"]
+    return [k, view, facing, body_up, solving.n_joints, fit2d, err, out["auto"][1], out["auto"][2],
             still, depth_sign_rate(solving, true3d, got3d, camera),
             100.0 * rep.embedding.coverage, rep.seconds]
 
@@ -138,8 +172,9 @@ def pose_table(quick: bool) -> tuple[str, list[str], list[list]] | None:
     for view in views:
         sel = [r for r in rows if r[1] == view]
         backs = sum(r[2] == "back" for r in sel)
-        rows.append([f"mean {view}", "", f"{backs} back", sel[0][3]]
-                    + [float(np.nanmean([r[c] for r in sel])) for c in range(4, 12)])
+        over = sum(r[3] != "up" for r in sel)
+        rows.append([f"mean {view}", "", f"{backs} back", f"{over} not up", sel[0][4]]
+                    + [float(np.nanmean([r[c] for r in sel])) for c in range(5, 13)])
     height = float(np.ptp(rest.skeleton.rest_heads[:, 2]))
     return (f"Whole gesture Pose of traced CMU poses on the imported Adventurer (glTF, token "
             f"bones read as joints; {height:.2f} m)", HEADERS, rows)

@@ -27,12 +27,36 @@ DRAWING_FACING_ITEMS = [
 ]
 
 
-def drawing_facing(op: bpy.types.Operator, context: bpy.types.Context) -> str:
-    """An operator's ``facing`` when it was given, else the panel's (``"auto"`` without)."""
-    if op.properties.is_property_set("facing"):
-        return op.facing
+#: The Body Up of Pose and Fit Drawing (``core.gesture.embedding.rolled_in_view``).
+DRAWING_BODY_UP_ITEMS = [
+    ("up", "Up", "The character stands as in its bind pose: its up is the drawing's up"),
+    ("left", "Left", "The character lies with its up (a humanoid's head) towards the "
+     "drawing's left"),
+    ("down", "Down", "The character is upside down in the drawing (a handstand, a "
+     "cartwheel)"),
+    ("right", "Right", "The character lies with its up (a humanoid's head) towards the "
+     "drawing's right"),
+]
+
+#: Defaults of the drawing settings an operator takes from the panel when not given.
+_DRAWING_DEFAULTS = {"facing": "auto", "body_up": "up"}
+
+
+def drawing_setting(op: bpy.types.Operator, context: bpy.types.Context, name: str) -> str:
+    """An operator's ``facing`` or ``body_up``: its own when given, else the panel's.
+
+    Args:
+        op: The operator.
+        context: Its context (the scene's ``gesture_pose`` settings).
+        name: ``"facing"`` or ``"body_up"``.
+
+    Returns:
+        The value; the setting's default when the scene has no settings.
+    """
+    if op.properties.is_property_set(name):
+        return getattr(op, name)
     settings = getattr(context.scene, "gesture_pose", None)
-    return settings.facing if settings is not None else "auto"
+    return getattr(settings, name) if settings is not None else _DRAWING_DEFAULTS[name]
 
 
 class GesturePoseSettings(bpy.types.PropertyGroup):
@@ -56,6 +80,13 @@ class GesturePoseSettings(bpy.types.PropertyGroup):
         description="Which side of the character the gesture drawing shows",
         items=DRAWING_FACING_ITEMS,
         default="auto",
+    )
+    body_up: bpy.props.EnumProperty(
+        name="Body Up",
+        description="Which way the character's up (a humanoid's head) points in the "
+        "gesture drawing",
+        items=DRAWING_BODY_UP_ITEMS,
+        default="up",
     )
 
 

@@ -308,7 +308,8 @@ def test_pose_keeps_ik_limits_about_the_real_bones_axes(registered, monkeypatch)
     builders.reset_pose(token)
     bpy.context.view_layer.update()
 
-    def oracle_fit(arm_obj, sketch_obj, camera, frame=None, params=None, facing="auto"):
+    def oracle_fit(arm_obj, sketch_obj, camera, frame=None, params=None, facing="auto",
+                   body_up="up"):
         sk = read_armature(arm_obj).skeleton
         return project_embedding(sk, solving_skeleton(sk), truth.pose, camera, 0.06,
                                  "auto"), 1

@@ -361,7 +361,8 @@ def test_pose_keys_only_changed_solving_bones_at_the_current_frame(registered, r
     bpy.context.view_layer.update()
     _preset_keys(arm, "upper_arm.L", outside[0])
 
-    def oracle(arm_obj, sketch_obj, camera, frame=None, params=None, facing="auto"):
+    def oracle(arm_obj, sketch_obj, camera, frame=None, params=None, facing="auto",
+               body_up="up"):
         skeleton = read_armature(arm_obj).skeleton
         return project_embedding(skeleton, solving, truth.pose, camera, 0.06, "auto"), 1
 

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from gesture_pose.core.gesture.depth import DepthOptions, solve_pose3d
+from gesture_pose.core.exceptions import InputError
+from gesture_pose.core.gesture.depth import DepthOptions, solve_pose3d, start
 from gesture_pose.core.gesture.depth.synthetic import project_embedding, solving_skeleton
 from gesture_pose.core.gesture.embedding import posed_joints
 from gesture_pose.core.gesture.types import Occlusion
@@ -192,3 +195,47 @@ def test_ik_limits_bound_the_local_rotation():
     res = solve_pose3d(sk, emb, cam, ik_limits=limits)
     assert np.abs(log_map(free.pose.rotations[2])).max() > 0.3  # the limit matters
     assert np.abs(log_map(res.pose.rotations[2])).max() <= 0.15 + 2e-3
+
+
+@pytest.mark.parametrize("body_up", ["left", "down", "right"])
+def test_the_rolled_bind_pose_turns_the_body_about_the_line_of_sight(body_up):
+    sk = tree_skeleton()
+    cam = front_camera(ortho=True)
+    bones = np.arange(sk.n_bones)
+    bind = Pose.identity(sk.n_bones)
+    rolled = start.rolled_bind(sk, bones, cam.forward, bind, body_up)
+    roll = start.view_roll(cam.forward, body_up)
+    rest, got = sk.forward(bind), sk.forward(rolled)
+    root = rest.heads[0]
+    np.testing.assert_allclose(got.tails, root + (rest.tails - root) @ roll.T, atol=1e-12)
+    # Only the top bone turns: the others keep their local rotations.
+    np.testing.assert_allclose(rolled.rotations[1:], bind.rotations[1:])
+    up = (got.tails[0] - got.heads[0])[[0, 2]]  # image x and y are world x and z
+    expected = {"left": [-1.0, 0.0], "down": [0.0, -1.0], "right": [1.0, 0.0]}[body_up]
+    np.testing.assert_allclose(up / np.linalg.norm(up), expected, atol=1e-12)
+    assert start.rolled_bind(sk, bones, cam.forward, bind, "up") is bind
+    held = start.rolled_bind(sk, bones, cam.forward, bind, body_up,
+                             fixed=np.arange(sk.n_bones) == 0)
+    np.testing.assert_allclose(held.rotations, bind.rotations)  # a pinned root stays
+    with pytest.raises(InputError, match="Body Up must be one of up, left, down, right"):
+        start.rolled_bind(sk, bones, cam.forward, bind, "over")
+
+
+def test_a_body_drawn_lying_keeps_its_drawn_links_with_body_up():
+    """The tree lying on its side, drawn flat: with Body Up Left the start and E_b read the
+    bind pose rolled the same way and the solve reproduces the drawing; read Up, E_b pulls
+    the links drawn near their upright bind directions off the drawing."""
+    sk = tree_skeleton()
+    cam = front_camera(ortho=True)
+    pose = _pose_with_world_rotation(sk, 0, -FORWARD * np.radians(90.0))  # head left
+    for bone, angle in ((3, -0.6), (5, 0.9)):  # forearms bent in the view plane
+        pose = pose.with_rotations(np.array([bone]), _pose_with_world_rotation(
+            sk, bone, FORWARD * angle).rotations[bone][None])
+    solving = solving_skeleton(sk)
+    emb = project_embedding(sk, solving, pose, cam)
+    truth = posed_joints(solving, sk, pose)
+    errors = {}
+    for body_up in ("up", "left"):
+        res = solve_pose3d(sk, replace(emb, body_up=body_up), cam)
+        errors[body_up] = float(np.abs(res.joints3d - truth).max())
+    assert errors["left"] < 1e-3 and errors["up"] > 0.01, errors

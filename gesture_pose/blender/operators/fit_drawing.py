@@ -36,7 +36,7 @@ from ..operator_utils import (
     resolve_sketch,
 )
 from ..panel import GesturePoseSubPanel
-from ..properties import DRAWING_FACING_ITEMS, drawing_facing
+from ..properties import DRAWING_BODY_UP_ITEMS, DRAWING_FACING_ITEMS, drawing_setting
 from ..read_armature import ArmatureData, read_armature
 from ..read_mesh import read_skinned_meshes
 from ..read_strokes import read_sketch, strokes_to_2d, write_strokes
@@ -77,7 +77,7 @@ def bind_pose(data: ArmatureData) -> Pose:
 def fit_scene_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
                       camera: Camera, frame: int | None = None,
                       params: GestureParams | None = None,
-                      facing: str = "auto") -> tuple[Embedding2D, int]:
+                      facing: str = "auto", body_up: str = "up") -> tuple[Embedding2D, int]:
     """Read the scene once and fit the drawing (no scene change).
 
     Args:
@@ -89,6 +89,8 @@ def fit_scene_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
         facing: The side of the character the drawing shows, ``"auto"`` (the side its bind
             pose shows in this view), ``"front"``, ``"back"`` or ``"turned"``
             (``fit_drawing``'s).
+        body_up: Which way the character's up points in the drawing: ``"up"``,
+            ``"left"``, ``"down"`` or ``"right"`` (``fit_drawing``'s).
 
     Returns:
         ``(embedding, number of strokes)``.
@@ -111,7 +113,7 @@ def fit_scene_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
     embedding = fit_drawing(strokes_to_2d(strokes, camera), data.skeleton, bind,
                             meshes.rest_vertices, camera, meshes.weights, params=params,
                             override=data.gesture_override, facing=facing,
-                            object_up=data.matrix_world[:3, 2])
+                            object_up=data.matrix_world[:3, 2], body_up=body_up)
     return embedding, len(strokes)
 
 
@@ -238,6 +240,10 @@ class GESTUREPOSE_OT_fit_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
                                    options={"SKIP_SAVE"},
                                    description="Which side of the character the drawing "
                                    "shows (unset: the panel's Facing)")
+    body_up: bpy.props.EnumProperty(name="Body Up", items=DRAWING_BODY_UP_ITEMS,
+                                    default="up", options={"SKIP_SAVE"},
+                                    description="Which way the character's up points in the "
+                                    "drawing (unset: the panel's Body Up)")
     show_fit: bpy.props.BoolProperty(name="Show Fit", default=True,
                                      description="Draw the fit on the sketch's "
                                      "'gesture_pose fit' layer (for a curve sketch, on a "
@@ -251,7 +257,9 @@ class GESTUREPOSE_OT_fit_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
         camera = camera_from_context(context)
         frame = context.scene.frame_current
         embedding, n_strokes = fit_scene_drawing(arm, sketch, camera, frame,
-                                                 facing=drawing_facing(self, context))
+                                                 facing=drawing_setting(self, context, "facing"),
+                                                 body_up=drawing_setting(self, context,
+                                                                         "body_up"))
         if self.show_fit:
             data = read_armature(arm)
             depth = float(np.mean(camera.depth(data.skeleton.forward(data.pose).heads)))
@@ -315,7 +323,8 @@ class VIEW3D_PT_gesture_pose_gesture(GesturePoseSubPanel, bpy.types.Panel):
         op = col.operator(GESTUREPOSE_OT_fit_drawing.bl_idname, icon="GREASEPENCIL")
         settings = getattr(context.scene, "gesture_pose", None)
         if settings is not None:
-            op.facing = settings.facing  # shown under Pose
+            op.facing = settings.facing  # both shown under Pose
+            op.body_up = settings.body_up
         col.operator(GESTUREPOSE_OT_trace_contours.bl_idname, icon="MOD_OUTLINE")
         op = col.operator(GESTUREPOSE_OT_trace_contours.bl_idname, text="Trace Rough Drawing")
         op.perturb = True

@@ -34,7 +34,7 @@ from ..operator_utils import (
     resolve_sketch,
 )
 from ..panel import GesturePoseSubPanel
-from ..properties import DRAWING_FACING_ITEMS, drawing_facing
+from ..properties import DRAWING_BODY_UP_ITEMS, DRAWING_FACING_ITEMS, drawing_setting
 from ..read_armature import read_armature
 from ..read_view import camera_from_context
 from ..write_pose import apply_pose
@@ -71,8 +71,8 @@ class PoseDrawingReport:
 def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
                       camera: Camera, *, frame: int | None = None, insert_keys: bool = True,
                       show_fit: bool = True, options: DepthOptions | None = None,
-                      facing: str = "auto", progress: Callable[[float], None] | None = None
-                      ) -> PoseDrawingReport:
+                      facing: str = "auto", body_up: str = "up",
+                      progress: Callable[[float], None] | None = None) -> PoseDrawingReport:
     """Pose an armature from a gesture drawing and key it (the whole "Pose" action).
 
     Args:
@@ -87,6 +87,9 @@ def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
         facing: The side of the character the drawing shows: ``"auto"`` (the side its bind
             pose shows in this view), ``"front"``, ``"back"`` or ``"turned"``
             (``core.gesture.embedding.facing_turn``).
+        body_up: Which way the character's up points in the drawing: ``"up"`` (as it
+            stands), ``"left"``, ``"down"`` or ``"right"``
+            (``core.gesture.embedding.rolled_in_view``).
         progress: Called with the fraction done, in ``[0, 1]``.
 
     Returns:
@@ -100,7 +103,8 @@ def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
     frame = bpy.context.scene.frame_current if frame is None else int(frame)
     data = read_armature(arm_obj)
     tick(0.05)
-    embedding, _ = fit_scene_drawing(arm_obj, sketch_obj, camera, frame, facing=facing)
+    embedding, _ = fit_scene_drawing(arm_obj, sketch_obj, camera, frame, facing=facing,
+                                     body_up=body_up)
     timings = {"fit": time.perf_counter() - t0}
     tick(0.8)
     t1 = time.perf_counter()
@@ -216,6 +220,10 @@ class GESTUREPOSE_OT_pose_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
                                    options={"SKIP_SAVE"},
                                    description="Which side of the character the drawing "
                                    "shows (unset: the panel's Facing)")
+    body_up: bpy.props.EnumProperty(name="Body Up", items=DRAWING_BODY_UP_ITEMS,
+                                    default="up", options={"SKIP_SAVE"},
+                                    description="Which way the character's up points in the "
+                                    "drawing (unset: the panel's Body Up)")
     show_fit: bpy.props.BoolProperty(name="Show Fit", default=True,
                                      description=f"Keep the fitted skeleton in the sketch's "
                                      f"'{FIT_LAYER}' layer (off: remove that layer)")
@@ -228,7 +236,9 @@ class GESTUREPOSE_OT_pose_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
         update, end = _progress(context)
         try:
             rep = pose_from_drawing(arm, sketch, camera, insert_keys=self.insert_keys,
-                                    show_fit=self.show_fit, facing=drawing_facing(self, context),
+                                    show_fit=self.show_fit,
+                                    facing=drawing_setting(self, context, "facing"),
+                                    body_up=drawing_setting(self, context, "body_up"),
                                     progress=update)
         finally:
             end()
@@ -291,7 +301,9 @@ class VIEW3D_PT_gesture_pose_drawing(GesturePoseSubPanel, bpy.types.Panel):
         settings = getattr(context.scene, "gesture_pose", None)
         if settings is not None:
             op.facing = settings.facing
+            op.body_up = settings.body_up
             col.prop(settings, "facing")
+            col.prop(settings, "body_up")
         col.operator(GESTUREPOSE_OT_flip_depth.bl_idname, icon="MOD_MIRROR")
 
 

@@ -29,7 +29,7 @@ from .consistency import (
 )
 from .costs import CostParams, unary_cost
 from .depth.energies import view_frame
-from .depth.start import REST_UP, front_direction, rig_up
+from .depth.start import REST_UP, front_direction, rig_up, view_roll
 from .mrf import (
     MatchProblem,
     build_energy,
@@ -827,11 +827,38 @@ def facing_turn(facing: str, solving: SolvingSkeleton, joints: np.ndarray, camer
     return (up if shows_back == (facing == "front") else None), None
 
 
+def rolled_in_view(points: np.ndarray, camera: Camera, body_up: str) -> np.ndarray:
+    """Points rolled in the image plane so that the character's up points ``body_up`` (ours).
+
+    The turn is about the camera's viewing direction through the points' centroid, so every
+    point keeps its depth and its image turns about the centroid's (exactly for an
+    orthographic view, to first order in the depth spread for a perspective one): a
+    character standing in the bind pose is shown lying on its side (``"left"``: its head
+    on the image's left) or upside down (``"down"``), as a handstand or a cartwheel is
+    drawn.
+
+    Args:
+        points: World positions, ``(J, 3)``.
+        camera: The view.
+        body_up: One of ``depth.start.BODY_UPS``.
+
+    Returns:
+        The rolled positions, world units, ``(J, 3)``.
+
+    Raises:
+        InputError: An unknown ``body_up``.
+    """
+    roll = view_roll(camera.forward, body_up)
+    pts = np.asarray(points, float)
+    centre = pts.mean(axis=0)
+    return centre + (pts - centre) @ roll.T
+
+
 def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices: np.ndarray,
                 camera: Camera, weights: np.ndarray | None = None,
                 params: GestureParams | None = None, override: np.ndarray | None = None,
                 solving: SolvingSkeleton | None = None, facing: str = "auto",
-                object_up: np.ndarray | None = None) -> Embedding2D:
+                object_up: np.ndarray | None = None, body_up: str = "up") -> Embedding2D:
     """Embed the solving skeleton in a gesture drawing.
 
     Args:
@@ -851,13 +878,18 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
             round (:func:`turned_half_round`).
         object_up: The armature object's z axis, world axes, ``(3,)``: tells the rig's up
             (``depth.start.rig_up``; None: world +Z) for ``facing``.
+        body_up: Which way the character's up points in the drawing, one of
+            ``depth.start.BODY_UPS``: ``"up"`` (as it stands), ``"left"``, ``"right"`` (lying)
+            or ``"down"`` (upside down). Other than ``"up"``, the reference and priors
+            are read from ``pose`` rolled in the image plane (:func:`rolled_in_view`),
+            after ``facing``'s turn.
 
     Returns:
         The embedding with its diagnostics.
 
     Raises:
         InputError: No strokes, a drawing far smaller than the character or beside it, no
-            mesh, an unknown ``facing``.
+            mesh, an unknown ``facing`` or ``body_up``.
     """
     params = params or GestureParams()
     timings: dict[str, float] = {}
@@ -869,6 +901,7 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
     turn, note = facing_turn(facing, solving, world, camera, object_up)
     if turn is not None:
         world = turned_half_round(world, turn)
+    world = rolled_in_view(world, camera, body_up)
     if note:
         warnings.append(note)
     reference = camera.project(world)
@@ -915,7 +948,8 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
     _, problem, conf, mask, refine_info, n_bad = best
     if n_bad:
         warnings.append(f"{n_bad} pairs of body parts claim the same contour.")
-    return _result(problem, conf, refine_info, timings, warnings, rounds, mask)
+    return replace(_result(problem, conf, refine_info, timings, warnings, rounds, mask),
+                   body_up=body_up)
 
 
 def _blocking_rounds(base, contour: list[JointCandidates], mid_r: np.ndarray,

@@ -138,6 +138,9 @@ class Embedding2D:
             ``"overlap"``) and counts.
         timings: Seconds per stage (``"preprocess"``, ``"candidates"``, ``"mrf"``, ...).
         warnings: Human-readable notes (skipped joints, unmet constraints).
+        body_up: Which way the character's up points in the drawing (``"up"``,
+            ``"left"``, ``"down"``, ``"right"``: ``embedding.BODY_UPS``), as the fit was
+            told; the 3D step starts from the bind pose rolled the same way.
     """
 
     solving: SolvingSkeleton
@@ -158,6 +161,7 @@ class Embedding2D:
     bridges: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), int))
     epsilon: float = 0.0
     warnings: tuple[str, ...] = ()
+    body_up: str = "up"
 
     def bone_points(self) -> tuple[np.ndarray, np.ndarray]:
         """Head and tail of every solving bone in the drawing, each ``(m, 2)`` pixels."""

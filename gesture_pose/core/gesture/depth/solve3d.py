@@ -995,6 +995,9 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
     base = pose if pose is not None else Pose.identity(skeleton.n_bones)
     bones = np.asarray(embedding.solving.bones, dtype=int)
     bind = base.with_rotations(bones, np.tile(np.eye(3), (len(bones), 1, 1)))
+    # A body drawn lying or upside down starts from its bind pose rolled the same way.
+    bind = start.rolled_bind(skeleton, bones, camera.forward, bind, embedding.body_up,
+                             None if pinned is None else np.asarray(pinned, bool)[bones])
     setup, X_rest, contacts, names = _setup(skeleton, embedding, camera, bind, opts,
                                             link_confidence, skip, forced)
     embedding = setup.embedding  # the drawn joints as the 3D step reads them

@@ -26,6 +26,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ...exceptions import InputError
 from ...names import side_of
 from ...rotations import log_map
 from ...skeleton import Pose, PoseState, Skeleton
@@ -465,6 +466,70 @@ def turned_bind(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame, bind
         if fixed[k] or int(skeleton.parents[bone]) in solving:
             continue
         rot = skeleton.local_rotation_for_frame(int(bone), half @ state.frames[bone], state)
+        pose = pose.with_rotations(np.array([bone]), rot[None])
+    return pose
+
+
+#: Which way the character's up points in the drawing, and the quarter turns (degrees,
+#: anticlockwise as the viewer sees the image) that roll its up from the image's up there.
+BODY_UPS = {"up": 0.0, "left": 90.0, "down": 180.0, "right": -90.0}
+
+
+def view_roll(forward: np.ndarray, body_up: str) -> np.ndarray:
+    """The rotation that rolls the image's up to ``body_up`` about the line of sight (ours).
+
+    Args:
+        forward: The viewing direction, world axes, ``(3,)`` (any length).
+        body_up: One of :data:`BODY_UPS`.
+
+    Returns:
+        The rotation matrix, world axes, ``(3, 3)``: about ``-forward`` (towards the
+        viewer), so anticlockwise as the viewer sees it.
+
+    Raises:
+        InputError: An unknown ``body_up``.
+    """
+    if body_up not in BODY_UPS:
+        raise InputError(f"Body Up must be one of {', '.join(BODY_UPS)}, not {body_up!r}.")
+    axis = -np.asarray(forward, float) / np.linalg.norm(forward)
+    t = np.radians(BODY_UPS[body_up])
+    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]],
+                      [-axis[1], axis[0], 0.0]])
+    return np.cos(t) * np.eye(3) + np.sin(t) * cross + (1.0 - np.cos(t)) * np.outer(axis, axis)
+
+
+def rolled_bind(skeleton: Skeleton, bones: np.ndarray, forward: np.ndarray, bind: Pose,
+                body_up: str, fixed: np.ndarray | None = None) -> Pose:
+    """The bind pose rolled about the line of sight as the drawing shows the body (ours).
+
+    For a character drawn lying or upside down (``Embedding2D.body_up``), each top solving
+    bone (its parent not solving) not ``fixed`` is rolled about the viewing direction
+    through its head (:func:`view_roll`), so that the start, the bind-pose priors and the
+    side rules read a bind pose drawn the way the drawing shows it; from the upright bind
+    pose the SQP had to turn the whole body over through its linearization.
+
+    Args:
+        skeleton: The full skeleton.
+        bones: Full-skeleton index of each solving bone, ``(m,)``.
+        forward: The viewing direction, world axes, ``(3,)``.
+        bind: The bind pose.
+        body_up: One of :data:`BODY_UPS`.
+        fixed: Solving bones left at their bind rotation, ``(m,)`` bool (optional).
+
+    Returns:
+        The rolled pose (``bind`` itself for ``"up"``).
+    """
+    roll = view_roll(forward, body_up)
+    if body_up == "up":
+        return bind
+    bones = np.asarray(bones, int)
+    solving = set(int(b) for b in bones)
+    state = skeleton.forward(bind)
+    pose = bind
+    for k, bone in enumerate(bones):
+        if (fixed is not None and fixed[k]) or int(skeleton.parents[bone]) in solving:
+            continue
+        rot = skeleton.local_rotation_for_frame(int(bone), roll @ state.frames[bone], state)
         pose = pose.with_rotations(np.array([bone]), rot[None])
     return pose
 
