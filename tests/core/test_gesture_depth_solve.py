@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
 from gesture_pose.core.exceptions import InputError
 from gesture_pose.core.gesture.depth import DepthOptions, solve_pose3d, start
+from gesture_pose.core.gesture.depth.energies import view_frame
 from gesture_pose.core.gesture.depth.synthetic import project_embedding, solving_skeleton
 from gesture_pose.core.gesture.embedding import posed_joints
 from gesture_pose.core.gesture.types import Occlusion
-from gesture_pose.core.rotations import exp_map
+from gesture_pose.core.rotations import exp_map, log_map
 from gesture_pose.core.skeleton import Pose
 from tests.core.fixtures import chain_skeleton, front_camera, tree_skeleton
 
@@ -221,21 +220,24 @@ def test_the_rolled_bind_pose_turns_the_body_about_the_line_of_sight(body_up):
         start.rolled_bind(sk, bones, cam.forward, bind, "over")
 
 
-def test_a_body_drawn_lying_keeps_its_drawn_links_with_body_up():
-    """The tree lying on its side, drawn flat: with Body Up Left the start and E_b read the
-    bind pose rolled the same way and the solve reproduces the drawing; read Up, E_b pulls
-    the links drawn near their upright bind directions off the drawing."""
+def test_the_facing_of_a_body_drawn_lying_is_read_against_the_rolled_bind_pose():
+    """The tree lying on its side (head left) shows its arm pair up and down the image:
+    read against the upright bind pose (arms across) it is misread (only its small offset
+    along the body lies across the image); against the bind pose rolled as drawn it tells
+    a body facing the viewer from one turned round about its axis."""
     sk = tree_skeleton()
     cam = front_camera(ortho=True)
-    pose = _pose_with_world_rotation(sk, 0, -FORWARD * np.radians(90.0))  # head left
-    for bone, angle in ((3, -0.6), (5, 0.9)):  # forearms bent in the view plane
-        pose = pose.with_rotations(np.array([bone]), _pose_with_world_rotation(
-            sk, bone, FORWARD * angle).rotations[bone][None])
     solving = solving_skeleton(sk)
-    emb = project_embedding(sk, solving, pose, cam)
-    truth = posed_joints(solving, sk, pose)
-    errors = {}
-    for body_up in ("up", "left"):
-        res = solve_pose3d(sk, replace(emb, body_up=body_up), cam)
-        errors[body_up] = float(np.abs(res.joints3d - truth).max())
-    assert errors["left"] < 1e-3 and errors["up"] > 0.01, errors
+    frame = view_frame(cam, solving.rest_joints.mean(axis=0))
+    rolled = solving.rest_joints @ start.view_roll(cam.forward, "left").T
+    roll = exp_map(-FORWARD * np.radians(90.0))
+    body_axis = roll @ np.array([0.0, 0.0, 1.0])  # the lying root bone, towards the left
+    lying = _pose_with_world_rotation(sk, 0, log_map(roll))
+    away = _pose_with_world_rotation(sk, 0, log_map(exp_map(np.pi * body_axis) @ roll))
+    misread = []
+    for pose, expected in ((lying, 1.0), (away, -1.0)):
+        joints2d = project_embedding(sk, solving, pose, cam).joints2d
+        assert start.drawn_facing(solving, joints2d, rolled, frame) == expected
+        misread.append(start.drawn_facing(solving, joints2d, solving.rest_joints,
+                                          frame) != expected)
+    assert any(misread)

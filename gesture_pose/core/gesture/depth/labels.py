@@ -408,7 +408,8 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     # ``admitted``: the labellings these two rules let be solved (the fitted first).
     admitted = np.ones(len(embeddings), bool)
     if opts.read_facing and not limits.facing:
-        facing = np.array([start.drawn_facing(s, e.joints2d, s.rest_joints, frame)
+        rest = s.rest_joints @ start.view_roll(frame.forward, embedding.body_up).T
+        facing = np.array([start.drawn_facing(s, e.joints2d, rest, frame)
                            for e in embeddings])
         admitted = facing == facing[0]
     # A labelling that draws more links longer than their bones can be drawn

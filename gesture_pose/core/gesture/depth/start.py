@@ -256,13 +256,15 @@ def drawn_facing(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np
                  ) -> float:
     """Whether the drawing shows the character turned around from its bind pose (-1) or not.
 
-    A character turned half-way round about the view's up axis shows its left side where
-    the bind pose shows its right: the image-x order of its left/right joint pairs is
-    reversed. Only the pairs nearest the root (hips, shoulders) are read, as hands and
-    feet cross freely, and only when the bind pose shows them apart (image-x difference at
-    least ``min_width`` of their distance; not in a side view). Each pair votes with its
-    drawn image-x difference times the bind pose's; a reversal needs the votes to agree on
-    at least ``min_agreement`` of their total weight.
+    A character turned half-way round about its up axis shows its left side where the
+    bind pose shows its right: the image order of its left/right joint pairs is reversed.
+    Only the pairs nearest the root (hips, shoulders) are read, as hands and feet cross
+    freely, and only when the bind pose shows them apart (their image difference at least
+    ``min_width`` of their distance; not in a side view). Each pair votes with the dot
+    product of its drawn image difference and the bind pose's (the image-x order for a
+    body standing in the view, ours for one lying: ``rest_joints`` rolled as
+    :func:`rolled_bind` rolls them); a reversal needs the votes to agree on at least
+    ``min_agreement`` of their total weight.
 
     Args:
         solving: The solving skeleton.
@@ -279,10 +281,11 @@ def drawn_facing(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np
     if not len(pairs):
         return 1.0
     rest = rest_joints[pairs[:, 0]] - rest_joints[pairs[:, 1]]
-    bind = rest @ frame.right
-    wide = np.abs(bind) >= min_width * np.maximum(np.linalg.norm(rest, axis=1), 1e-12)
-    drawn = (joints2d[pairs[:, 0]] - joints2d[pairs[:, 1]])[:, 0] / frame.scale
-    votes = (drawn * bind)[wide]
+    bind = np.stack([rest @ frame.right, rest @ frame.up], axis=1)
+    wide = np.linalg.norm(bind, axis=1) >= min_width * np.maximum(
+        np.linalg.norm(rest, axis=1), 1e-12)
+    drawn = (joints2d[pairs[:, 0]] - joints2d[pairs[:, 1]]) / frame.scale
+    votes = np.sum(drawn * bind, axis=1)[wide]
     total = float(np.sum(np.abs(votes)))
     if total <= 0.0 or float(np.sum(votes)) >= -min_agreement * total:
         return 1.0
@@ -438,11 +441,12 @@ def _aim_in_order(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
 
 
 def turned_bind(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame, bind: Pose,
-                fixed: np.ndarray) -> Pose:
-    """The bind pose turned half round about the view's up axis (ours).
+                fixed: np.ndarray, body_up: str = "up") -> Pose:
+    """The bind pose turned half round about the body's up axis in the view (ours).
 
     For a character drawn turned around (:func:`drawn_facing`), each top solving bone (its
     parent not solving) not ``fixed`` is turned by 180 degrees about the view's up axis
+    (rolled to ``body_up`` for a body drawn lying or upside down, :func:`view_roll`)
     through its head before the bones are aimed: aiming keeps a bone's twist
     (:meth:`Skeleton.aim_local`), so from the unturned bind pose the SQP had to turn the
     whole body round itself, through the depth of every limb.
@@ -453,12 +457,13 @@ def turned_bind(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame, bind
         frame: The view.
         bind: The bind pose.
         fixed: Solving bones left at their bind rotation, ``(m,)`` bool.
+        body_up: Which way the body's up points in the drawing (:data:`BODY_UPS`).
 
     Returns:
         The turned pose.
     """
     solving = set(int(b) for b in jmap.bones)
-    up = np.asarray(frame.up, float)
+    up = view_roll(frame.forward, body_up) @ np.asarray(frame.up, float)
     half = 2.0 * np.outer(up, up) / float(up @ up) - np.eye(3)  # rotation by pi about up
     state = skeleton.forward(bind)
     pose = bind
@@ -912,7 +917,7 @@ def start_pose(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
         fixed = fixed & ~chosen
     turned = facing < 0 and turn
     if turned:
-        bind = turned_bind(skeleton, jm, f, bind, fixed)
+        bind = turned_bind(skeleton, jm, f, bind, fixed, embedding.body_up)
     facing_dir = front_direction(sk, sk.rest_joints, f, up) if pelvis_front > 0.0 else None
     if facing_dir is not None:
         # The turned bind pose carries the front round with it; the unturned one does not.
