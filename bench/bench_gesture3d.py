@@ -430,6 +430,64 @@ def pictures(out_dir: Path, pose_name: str = "demo") -> list[Path]:
     return paths
 
 
+def body_up_pictures(out_dir: Path) -> Path:
+    """Render ``gesture3d_body_up.png``: a handstand drawn, posed read Up and with Body Up.
+
+    The sample humanoid raising its left arm, its root rolled 180 degrees about the front
+    camera's line of sight (upside down), traced through a camera framed on it; three
+    front renders: the bind pose under the drawing, the whole Pose with the default Body
+    Up (*Up*) and with *Down* (Workbench, 400 px each).
+    """
+    import bpy
+
+    import gesture_pose
+    from gesture_pose.blender.operators.pose_drawing import pose_from_drawing
+    from gesture_pose.blender.read_armature import read_armature
+    from gesture_pose.blender.read_mesh import read_skinned_meshes
+    from gesture_pose.core.gesture.embedding import posed_joints
+    from gesture_pose.core.gesture.solving import solving_skeleton
+    from gesture_pose.core.gesture.trace import trace_contours
+    from sample_scenes import builders
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    if not hasattr(bpy.types.Scene, "gesture_pose"):  # once per process
+        gesture_pose.register()
+    arm, _ = _scene("humanoid", HUMANOID_VIEWS["front"])
+    scene = bpy.context.scene
+    builders.add_light()
+    bind = read_armature(arm)
+    builders.apply_rotations(arm, {**builders.HUMANOID_POSES["raise_left_arm"],
+                                   arm.data.bones[0].name: ((0.0, -1.0, 0.0), 180.0)})
+    bpy.context.view_layer.update()
+    truth = read_armature(arm)
+    cam = _posed_camera(arm, truth, HUMANOID_VIEWS["front"])
+    scene.render.resolution_x = scene.render.resolution_y = 400
+    meshes = read_skinned_meshes(arm, truth.skeleton)
+    traced = trace_contours(meshes.deformed_vertices, meshes.triangles, cam)
+    strokes = [cam.unproject_at_depth(p, d - 0.5)
+               for p, d in zip(traced.pixels, traced.depths, strict=True)]
+    builders.reset_pose(arm)
+    bpy.context.view_layer.update()
+    sketch = builders.add_grease_pencil("Sketch", strokes, radius=0.005)
+    shots, errors = [_render(out_dir / "_before.png")], []
+    solving = solving_skeleton(bind.skeleton)
+    for body_up in ("up", "down"):
+        rep = pose_from_drawing(arm, sketch, cam, insert_keys=False, show_fit=False,
+                                body_up=body_up)
+        bpy.context.view_layer.update()
+        shots.append(_render(out_dir / f"_{body_up}.png"))
+        whole = posed_joints(solving, bind.skeleton, rep.result.pose)
+        errors.append(metrics(solving, bind.skeleton, truth.pose, whole, cam)[0])
+    for tmp in out_dir.glob("_*.png"):
+        tmp.unlink()
+    path = out_dir / "gesture3d_body_up.png"
+    _save_row(shots, path)
+    print("handstand, 3D error (% of the height): Body Up Up {:.2f}, Down {:.2f}".format(
+        *errors))
+    return path
+
+
 if __name__ == "__main__":
     import sys
 
@@ -437,4 +495,5 @@ if __name__ == "__main__":
     target = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1] \
         / "docs" / "img"
     for name in sys.argv[2:] or ["demo"]:
-        print(*pictures(target, name), sep="\n")
+        print(*([body_up_pictures(target)] if name == "body_up" else pictures(target, name)),
+              sep="\n")
