@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -10,6 +12,7 @@ from gesture_pose.core.gesture.depth import DepthOptions, solve_pose3d, start
 from gesture_pose.core.gesture.depth.energies import view_frame
 from gesture_pose.core.gesture.depth.synthetic import project_embedding, solving_skeleton
 from gesture_pose.core.gesture.embedding import posed_joints
+from gesture_pose.core.gesture.solving import build_solving_skeleton
 from gesture_pose.core.gesture.types import Occlusion
 from gesture_pose.core.rotations import exp_map, log_map
 from gesture_pose.core.skeleton import Pose
@@ -237,7 +240,34 @@ def test_the_facing_of_a_body_drawn_lying_is_read_against_the_rolled_bind_pose()
     misread = []
     for pose, expected in ((lying, 1.0), (away, -1.0)):
         joints2d = project_embedding(sk, solving, pose, cam).joints2d
-        assert start.drawn_facing(solving, joints2d, rolled, frame) == expected
+        assert start.drawn_facing(solving, joints2d, rolled, frame, body_up="left") == expected
         misread.append(start.drawn_facing(solving, joints2d, solving.rest_joints,
                                           frame) != expected)
-    assert any(misread)
+    assert misread == [False, True]
+
+
+def test_a_bone_under_a_hidden_bone_rolls_with_its_solving_ancestor():
+    """A chain whose third bone does not solve (a shoulder the drawing does not show):
+    the fourth still hangs from the second through it, so only the first is a root and
+    the whole chain rolls rigidly about its head. Pinned, the root keeps its rotation
+    and the solve says so."""
+    pts = np.stack([np.zeros(5), np.zeros(5), np.array([0.0, 0.5, 1.0, 1.1, 1.6])], 1)
+    sk = chain_skeleton(pts)
+    bones = np.array([0, 1, 3])
+    np.testing.assert_array_equal(start.solving_roots(sk, bones), [True, False, False])
+    cam = front_camera(ortho=True)
+    bind = Pose.identity(sk.n_bones)
+    rolled = sk.forward(start.rolled_bind(sk, bones, cam.forward, bind, "down"))
+    rest = sk.forward(bind)
+    roll = start.view_roll(cam.forward, "down")
+    np.testing.assert_allclose(rolled.tails, rest.heads[0] + (rest.tails - rest.heads[0])
+                               @ roll.T, atol=1e-12)
+    mask = np.zeros(sk.n_bones, bool)
+    mask[bones] = True
+    solving = build_solving_skeleton(sk, mask)
+    emb = replace(project_embedding(sk, solving, bind, cam), body_up="down")
+    pinned = np.zeros(sk.n_bones, bool)
+    pinned[0] = True
+    res = solve_pose3d(sk, emb, cam, pinned=pinned)
+    assert any(w.startswith("Body Up Down was not applied to the pinned bone(s) b0")
+               for w in res.warnings), res.warnings

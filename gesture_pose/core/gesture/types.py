@@ -139,7 +139,7 @@ class Embedding2D:
         timings: Seconds per stage (``"preprocess"``, ``"candidates"``, ``"mrf"``, ...).
         warnings: Human-readable notes (skipped joints, unmet constraints).
         body_up: Which way the character's up points in the drawing (``"up"``,
-            ``"left"``, ``"down"``, ``"right"``: ``embedding.BODY_UPS``), as the fit was
+            ``"left"``, ``"down"``, ``"right"``: ``depth.start.BODY_UPS``), as the fit was
             told; the 3D step starts from the bind pose rolled the same way.
     """
 

@@ -314,14 +314,26 @@ def pose_cost(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray, p
     return cost
 
 
+def _rolled_rest(embedding: Embedding2D, frame: energies.ViewFrame) -> np.ndarray:
+    """The solving skeleton's rest joints rolled as the body is drawn, ``(J, 3)``.
+
+    Turned about the origin by ``Embedding2D.body_up``'s roll (:func:`.start.view_roll`):
+    the link vectors and left/right pairs the label choice reads, as the 3D step's rolled
+    bind pose (:func:`.start.rolled_bind`) shows them.
+    """
+    rest = np.asarray(embedding.solving.rest_joints, float)
+    return rest @ start.view_roll(frame.forward, embedding.body_up).T
+
+
 def bind_links(embedding: Embedding2D, frame: energies.ViewFrame,
                options: DepthOptions) -> float:
     """How many links the embedding draws as the bind pose shows them (ours).
 
     The sum over the joint tree's links of E_b's agreement
     (:func:`.energies.bind_agreement`, ``DepthOptions.bind_sigma``): 1 for a link drawn
-    exactly as in the bind pose seen in the view, falling off with the image distance
-    between the two link vectors.
+    exactly as in the bind pose seen in the view (rolled as the body is drawn,
+    ``Embedding2D.body_up``), falling off with the image distance between the two link
+    vectors.
 
     Args:
         embedding: The 2D embedding.
@@ -333,7 +345,7 @@ def bind_links(embedding: Embedding2D, frame: energies.ViewFrame,
     """
     s = embedding.solving
     a, b = energies.joint_links(np.asarray(s.joint_parent))
-    rest = np.asarray(s.rest_joints, float)
+    rest = _rolled_rest(embedding, frame)
     height = float(np.ptp(rest, axis=0).max())
     return float(energies.bind_agreement(embedding.joints2d, a, b, rest[b] - rest[a], frame,
                                          height, options.bind_sigma).sum())
@@ -408,8 +420,9 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     # ``admitted``: the labellings these two rules let be solved (the fitted first).
     admitted = np.ones(len(embeddings), bool)
     if opts.read_facing and not limits.facing:
-        rest = s.rest_joints @ start.view_roll(frame.forward, embedding.body_up).T
-        facing = np.array([start.drawn_facing(s, e.joints2d, rest, frame)
+        rest = _rolled_rest(embedding, frame)
+        facing = np.array([start.drawn_facing(s, e.joints2d, rest, frame,
+                                              body_up=embedding.body_up)
                            for e in embeddings])
         admitted = facing == facing[0]
     # A labelling that draws more links longer than their bones can be drawn

@@ -523,8 +523,8 @@ def _setup(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, bind: Pos
     lengths = np.linalg.norm(X_rest[b] - X_rest[a], axis=1)
     n_j = jmap.n_joints
     ratios = energies.foreshortening_ratios(embedding.joints2d, a, b, lengths, frame.scale)
-    facing = (start.drawn_facing(s, embedding.joints2d, X_rest, frame) if opts.read_facing
-              else 1.0)
+    facing = (start.drawn_facing(s, embedding.joints2d, X_rest, frame,
+                                 body_up=embedding.body_up) if opts.read_facing else 1.0)
     weights = energies.foreshortening_weights(ratios, opts.sigma_f, opts.free_ratio)
     visible = np.asarray(embedding.joint_visible, dtype=bool)
     # A link drawn longer than it can be (its 3D length, plus perspective) has a misplaced
@@ -995,9 +995,20 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
     base = pose if pose is not None else Pose.identity(skeleton.n_bones)
     bones = np.asarray(embedding.solving.bones, dtype=int)
     bind = base.with_rotations(bones, np.tile(np.eye(3), (len(bones), 1, 1)))
-    # A body drawn lying or upside down starts from its bind pose rolled the same way.
-    bind = start.rolled_bind(skeleton, bones, camera.forward, bind, embedding.body_up,
-                             None if pinned is None else np.asarray(pinned, bool)[bones])
+    # A body drawn lying or upside down starts from its bind pose rolled the same way,
+    # about the line of sight through the character.
+    held = None if pinned is None else np.asarray(pinned, bool)[bones]
+    notes = []
+    if embedding.body_up != "up":
+        roots = start.solving_roots(skeleton, bones)
+        if held is not None and np.any(held & roots):
+            names = ", ".join(skeleton.names[int(b)] for b in bones[held & roots])
+            notes.append(f"Body Up {embedding.body_up.capitalize()} was not applied to "
+                         f"the pinned bone(s) {names}: they keep their bind rotation.")
+        state = skeleton.forward(bind)
+        centre = np.concatenate([state.heads[bones], state.tails[bones]]).mean(axis=0)
+        bind = start.rolled_bind(skeleton, bones, camera.view_directions(centre[None])[0],
+                                 bind, embedding.body_up, held)
     setup, X_rest, contacts, names = _setup(skeleton, embedding, camera, bind, opts,
                                             link_confidence, skip, forced)
     embedding = setup.embedding  # the drawn joints as the 3D step reads them
@@ -1050,7 +1061,7 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
         hard = [c for c in setup.order if not c.soft]
     timings["start"] = time.perf_counter() - t1
     jm = setup.jmap
-    warnings: list[str] = []
+    warnings: list[str] = notes
     mean_len = float(np.mean(setup.lengths)) if len(setup.lengths) else 1.0
     soften, converged, active, qp_time, it = False, False, (), 0.0, 0
     previous = previous_violation = np.inf

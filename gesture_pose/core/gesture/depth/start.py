@@ -252,27 +252,29 @@ def bind_front(solving: SolvingSkeleton, rest_joints: np.ndarray, frame: ViewFra
 
 
 def drawn_facing(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np.ndarray,
-                 frame: ViewFrame, min_agreement: float = 0.5, min_width: float = 0.3
-                 ) -> float:
+                 frame: ViewFrame, min_agreement: float = 0.5, min_width: float = 0.3,
+                 body_up: str = "up") -> float:
     """Whether the drawing shows the character turned around from its bind pose (-1) or not.
 
     A character turned half-way round about its up axis shows its left side where the
-    bind pose shows its right: the image order of its left/right joint pairs is reversed.
-    Only the pairs nearest the root (hips, shoulders) are read, as hands and feet cross
-    freely, and only when the bind pose shows them apart (their image difference at least
-    ``min_width`` of their distance; not in a side view). Each pair votes with the dot
-    product of its drawn image difference and the bind pose's (the image-x order for a
-    body standing in the view, ours for one lying: ``rest_joints`` rolled as
-    :func:`rolled_bind` rolls them); a reversal needs the votes to agree on at least
-    ``min_agreement`` of their total weight.
+    bind pose shows its right: the order of its left/right joint pairs across the body in
+    the image is reversed. Across the body is the image's x axis, rolled as the body is
+    drawn (``body_up``, :func:`view_roll`; ours). Only the pairs nearest the root (hips,
+    shoulders) are read, as hands and feet cross freely, and only when the bind pose
+    shows them apart (their difference across at least ``min_width`` of their distance;
+    not in a side view). Each pair votes with its drawn difference across times the bind
+    pose's; a reversal needs the votes to agree on at least ``min_agreement`` of their
+    total weight.
 
     Args:
         solving: The solving skeleton.
         joints2d: Drawn joints, pixels, shape ``(J, 2)``.
-        rest_joints: Bind-pose joints, world units, shape ``(J, 3)``.
+        rest_joints: Bind-pose joints, world units, shape ``(J, 3)``: rolled as drawn
+            (:func:`rolled_bind`) when ``body_up`` is not ``"up"``.
         frame: The view.
         min_agreement: Smallest ``|sum| / sum(|votes|)`` to read a reversal.
-        min_width: Smallest bind image-x difference of a voting pair over its distance.
+        min_width: Smallest bind difference across of a voting pair over its distance.
+        body_up: Which way the body's up points in the drawing (:data:`BODY_UPS`).
 
     Returns:
         -1.0 when the drawing shows the character turned around, else 1.0.
@@ -280,12 +282,13 @@ def drawn_facing(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np
     pairs = _first_pairs(solving)
     if not len(pairs):
         return 1.0
+    across = view_roll(frame.forward, body_up) @ np.asarray(frame.right, float)
+    across_px = np.array([across @ frame.right, across @ frame.up])
     rest = rest_joints[pairs[:, 0]] - rest_joints[pairs[:, 1]]
-    bind = np.stack([rest @ frame.right, rest @ frame.up], axis=1)
-    wide = np.linalg.norm(bind, axis=1) >= min_width * np.maximum(
-        np.linalg.norm(rest, axis=1), 1e-12)
-    drawn = (joints2d[pairs[:, 0]] - joints2d[pairs[:, 1]]) / frame.scale
-    votes = np.sum(drawn * bind, axis=1)[wide]
+    bind = rest @ across
+    wide = np.abs(bind) >= min_width * np.maximum(np.linalg.norm(rest, axis=1), 1e-12)
+    drawn = (joints2d[pairs[:, 0]] - joints2d[pairs[:, 1]]) @ across_px / frame.scale
+    votes = (drawn * bind)[wide]
     total = float(np.sum(np.abs(votes)))
     if total <= 0.0 or float(np.sum(votes)) >= -min_agreement * total:
         return 1.0
@@ -440,16 +443,68 @@ def _aim_in_order(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     return pose, signs
 
 
+def solving_roots(skeleton: Skeleton, bones: np.ndarray) -> np.ndarray:
+    """Which solving bones have no solving ancestor, ``(m,)`` bool (ours).
+
+    Turning these about their heads turns the whole solving skeleton with them; a bone
+    under a solving one through bones that do not solve (an arm under a shoulder the
+    drawing does not show) turns with its solving ancestor.
+
+    Args:
+        skeleton: The full skeleton.
+        bones: Full-skeleton index of each solving bone, ``(m,)``.
+
+    Returns:
+        The mask over ``bones``.
+    """
+    bones = np.asarray(bones, int)
+    solving = np.zeros(skeleton.n_bones, bool)
+    solving[bones] = True
+    out = np.ones(len(bones), bool)
+    for k, bone in enumerate(bones):
+        p = int(skeleton.parents[bone])
+        while p >= 0 and out[k]:
+            out[k] = not solving[p]
+            p = int(skeleton.parents[p])
+    return out
+
+
+def _turned_roots(skeleton: Skeleton, bones: np.ndarray, bind: Pose, rotation: np.ndarray,
+                  fixed: np.ndarray | None) -> Pose:
+    """The pose with each solving root not ``fixed`` turned about its head.
+
+    Args:
+        skeleton: The full skeleton.
+        bones: Full-skeleton index of each solving bone, ``(m,)``.
+        bind: The pose to turn.
+        rotation: The turn, world axes, ``(3, 3)``.
+        fixed: Solving bones left as they are, ``(m,)`` bool (optional).
+
+    Returns:
+        The turned pose (:func:`solving_roots`' bones changed).
+    """
+    bones = np.asarray(bones, int)
+    roots = solving_roots(skeleton, bones)
+    if fixed is not None:
+        roots &= ~np.asarray(fixed, bool)
+    state = skeleton.forward(bind)
+    pose = bind
+    for bone in bones[roots]:
+        rot = skeleton.local_rotation_for_frame(int(bone), rotation @ state.frames[bone], state)
+        pose = pose.with_rotations(np.array([bone]), rot[None])
+    return pose
+
+
 def turned_bind(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame, bind: Pose,
                 fixed: np.ndarray, body_up: str = "up") -> Pose:
     """The bind pose turned half round about the body's up axis in the view (ours).
 
-    For a character drawn turned around (:func:`drawn_facing`), each top solving bone (its
-    parent not solving) not ``fixed`` is turned by 180 degrees about the view's up axis
-    (rolled to ``body_up`` for a body drawn lying or upside down, :func:`view_roll`)
-    through its head before the bones are aimed: aiming keeps a bone's twist
-    (:meth:`Skeleton.aim_local`), so from the unturned bind pose the SQP had to turn the
-    whole body round itself, through the depth of every limb.
+    For a character drawn turned around (:func:`drawn_facing`), each solving root (a
+    solving bone without solving ancestors, :func:`solving_roots`) not ``fixed`` is turned
+    by 180 degrees about the view's up axis (rolled to ``body_up`` for a body drawn lying
+    or upside down, :func:`view_roll`) through its head before the bones are aimed: aiming
+    keeps a bone's twist (:meth:`Skeleton.aim_local`), so from the unturned bind pose the
+    SQP had to turn the whole body round itself, through the depth of every limb.
 
     Args:
         skeleton: The full skeleton.
@@ -462,17 +517,9 @@ def turned_bind(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame, bind
     Returns:
         The turned pose.
     """
-    solving = set(int(b) for b in jmap.bones)
     up = view_roll(frame.forward, body_up) @ np.asarray(frame.up, float)
     half = 2.0 * np.outer(up, up) / float(up @ up) - np.eye(3)  # rotation by pi about up
-    state = skeleton.forward(bind)
-    pose = bind
-    for k, bone in enumerate(jmap.bones):
-        if fixed[k] or int(skeleton.parents[bone]) in solving:
-            continue
-        rot = skeleton.local_rotation_for_frame(int(bone), half @ state.frames[bone], state)
-        pose = pose.with_rotations(np.array([bone]), rot[None])
-    return pose
+    return _turned_roots(skeleton, jmap.bones, bind, half, fixed)
 
 
 #: Which way the character's up points in the drawing, and the quarter turns (degrees,
@@ -507,16 +554,18 @@ def rolled_bind(skeleton: Skeleton, bones: np.ndarray, forward: np.ndarray, bind
                 body_up: str, fixed: np.ndarray | None = None) -> Pose:
     """The bind pose rolled about the line of sight as the drawing shows the body (ours).
 
-    For a character drawn lying or upside down (``Embedding2D.body_up``), each top solving
-    bone (its parent not solving) not ``fixed`` is rolled about the viewing direction
+    For a character drawn lying or upside down (``Embedding2D.body_up``), each solving
+    root (:func:`solving_roots`) not ``fixed`` is rolled about the viewing direction
     through its head (:func:`view_roll`), so that the start, the bind-pose priors and the
     side rules read a bind pose drawn the way the drawing shows it; from the upright bind
-    pose the SQP had to turn the whole body over through its linearization.
+    pose the SQP had to turn the whole body over through its linearization. A rig with one
+    solving root rolls rigidly; several roots each roll about their own heads, which stay
+    where they are.
 
     Args:
         skeleton: The full skeleton.
         bones: Full-skeleton index of each solving bone, ``(m,)``.
-        forward: The viewing direction, world axes, ``(3,)``.
+        forward: The viewing direction at the character, world axes, ``(3,)``.
         bind: The bind pose.
         body_up: One of :data:`BODY_UPS`.
         fixed: Solving bones left at their bind rotation, ``(m,)`` bool (optional).
@@ -527,16 +576,7 @@ def rolled_bind(skeleton: Skeleton, bones: np.ndarray, forward: np.ndarray, bind
     roll = view_roll(forward, body_up)
     if body_up == "up":
         return bind
-    bones = np.asarray(bones, int)
-    solving = set(int(b) for b in bones)
-    state = skeleton.forward(bind)
-    pose = bind
-    for k, bone in enumerate(bones):
-        if (fixed is not None and fixed[k]) or int(skeleton.parents[bone]) in solving:
-            continue
-        rot = skeleton.local_rotation_for_frame(int(bone), roll @ state.frames[bone], state)
-        pose = pose.with_rotations(np.array([bone]), rot[None])
-    return pose
+    return _turned_roots(skeleton, bones, bind, roll, fixed)
 
 
 def _within(rotvec: np.ndarray, limits: np.ndarray, tol: float = 1e-3) -> bool:
