@@ -59,6 +59,23 @@ def drawing_setting(op: bpy.types.Operator, context: bpy.types.Context, name: st
     return getattr(settings, name) if settings is not None else _DRAWING_DEFAULTS[name]
 
 
+def drawing_settings_note(facing: str, body_up: str) -> str:
+    """``"; read with Facing Back, Body Up Down"`` for settings other than the defaults.
+
+    Args:
+        facing: The Facing used (``DRAWING_FACING_ITEMS``' identifiers).
+        body_up: The Body Up used (``DRAWING_BODY_UP_ITEMS``' identifiers).
+
+    Returns:
+        The note, empty for As Seen and Up.
+    """
+    names = {**{f"facing {i}": n for i, n, _ in DRAWING_FACING_ITEMS},
+             **{f"body_up {i}": n for i, n, _ in DRAWING_BODY_UP_ITEMS}}
+    read = ([f"Facing {names[f'facing {facing}']}"] if facing != "auto" else []) + (
+        [f"Body Up {names[f'body_up {body_up}']}"] if body_up != "up" else [])
+    return f"; read with {', '.join(read)}" if read else ""
+
+
 class GesturePoseSettings(bpy.types.PropertyGroup):
     """The armature and sketch the Gesture Pose operators use by default."""
 

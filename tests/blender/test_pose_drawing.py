@@ -464,6 +464,10 @@ def test_a_body_drawn_lying_from_behind_is_turned_about_its_own_axis(registered)
         errors[facing] = _errors(solving, bind.skeleton, truth.pose,
                                  read_armature(arm).pose, cam)[0]
         assert rep.embedding.body_up == "left"
+        # The settings stay on the scene for the next drawing: the report names them.
+        assert pose_drawing.summary(rep).endswith(
+            "; read with Facing Back, Body Up Left" if facing == "back"
+            else "; read with Body Up Left")
     assert errors["back"] < 6.5 and errors["auto"] > 2.0 * errors["back"], errors
 
 
@@ -542,6 +546,7 @@ def test_pose_keys_the_labels_the_joints_ranges_choose(registered, monkeypatch):
     assert rep.labels.names[rep.labels.chosen] == "thigh.L/thigh.R below"
     assert "labels thigh.L/thigh.R below exchanged" in pose_drawing.summary(rep)
     assert "exchanged" not in pose_drawing.summary(plain)
+    assert "read with" not in pose_drawing.summary(plain)  # As Seen and Up: not named
     np.testing.assert_allclose(rep.embedding.joints2d, exact.joints2d, atol=1e-9)
     after = read_armature(arm)
     np.testing.assert_allclose(after.pose.rotations, rep.result.pose.rotations, atol=1e-5)

@@ -36,7 +36,12 @@ from ..operator_utils import (
     resolve_sketch,
 )
 from ..panel import GesturePoseSubPanel
-from ..properties import DRAWING_BODY_UP_ITEMS, DRAWING_FACING_ITEMS, drawing_setting
+from ..properties import (
+    DRAWING_BODY_UP_ITEMS,
+    DRAWING_FACING_ITEMS,
+    drawing_setting,
+    drawing_settings_note,
+)
 from ..read_armature import ArmatureData, read_armature
 from ..read_mesh import read_skinned_meshes
 from ..read_strokes import read_sketch, strokes_to_2d, write_strokes
@@ -268,7 +273,9 @@ class GESTUREPOSE_OT_fit_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
             self.report({"WARNING"}, warning)
         report_result(self, f"Fitted {embedding.solving.n_joints} joints to {n_strokes} "
                             f"strokes in {time.perf_counter() - t0:.2f} s; coverage "
-                            f"{100 * embedding.coverage:.0f}%")
+                            f"{100 * embedding.coverage:.0f}%"
+                            + drawing_settings_note(drawing_setting(self, context, "facing"),
+                                                    embedding.body_up))
         return {"FINISHED"}
 
 

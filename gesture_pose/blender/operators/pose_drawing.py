@@ -34,7 +34,12 @@ from ..operator_utils import (
     resolve_sketch,
 )
 from ..panel import GesturePoseSubPanel
-from ..properties import DRAWING_BODY_UP_ITEMS, DRAWING_FACING_ITEMS, drawing_setting
+from ..properties import (
+    DRAWING_BODY_UP_ITEMS,
+    DRAWING_FACING_ITEMS,
+    drawing_setting,
+    drawing_settings_note,
+)
 from ..read_armature import read_armature
 from ..read_view import camera_from_context
 from ..write_pose import apply_pose
@@ -57,6 +62,7 @@ class PoseDrawingReport:
         labels: The choice between left/right labellings of the fit
             (``DepthOptions.limb_labels``), None when off; ``embedding`` has the chosen
             labels.
+        facing: The Facing the drawing was read with (``"auto"``: As Seen).
     """
 
     embedding: Embedding2D
@@ -66,6 +72,7 @@ class PoseDrawingReport:
     timings: dict
     warnings: tuple[str, ...] = ()
     labels: LabelChoice | None = None
+    facing: str = "auto"
 
 
 def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
@@ -138,7 +145,7 @@ def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
     timings["write"] = time.perf_counter() - t2
     tick(1.0)
     return PoseDrawingReport(embedding, result, tuple(written), time.perf_counter() - t0,
-                             timings, data.warnings, choice)
+                             timings, data.warnings, choice, facing)
 
 
 def flip_limb_depth(arm_obj: bpy.types.Object, bone_name: str, camera: Camera, *,
@@ -173,7 +180,8 @@ def summary(rep: PoseDrawingReport) -> str:
 
     When the joints' ranges chose other left/right labels than the 2D fit's
     (``DepthOptions.limb_labels``), the line names the exchanged pair, so the user knows
-    why a limb took the other side's outline.
+    why a limb took the other side's outline. A Facing or Body Up other than the default
+    is named too: both are scene settings that stay set for the next drawing.
 
     Args:
         rep: What the Pose did.
@@ -189,7 +197,7 @@ def summary(rep: PoseDrawingReport) -> str:
     if rep.labels is not None and rep.labels.chosen != 0:
         text += (f"; left/right labels {rep.labels.names[rep.labels.chosen]} exchanged "
                  "(the joints' ranges prefer them to the fit's)")
-    return text
+    return text + drawing_settings_note(rep.facing, rep.embedding.body_up)
 
 
 def _progress(context) -> tuple[Callable[[float], None], Callable[[], None]]:
