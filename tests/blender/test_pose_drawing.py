@@ -418,7 +418,7 @@ def _traced_rolled(arm, rotations: dict, degrees: float, turned: bool = False):
 
 # The humanoid raising its left arm drawn upside down (a handstand) and lying with its
 # head on the drawing's left, traced from the front. Measured with the Pose of this commit,
-# % of the height: upside down 55.3 read Up, 2.1 with Body Up Down; lying 40.7 and 1.6
+# % of the height: upside down 55.3 read Up, 1.2 with Body Up Down; lying 40.7 and 1.2
 # with Left (9.6 when only the 2D fit was rolled, the 3D step starting upright).
 @pytest.mark.parametrize(("degrees", "body_up"), [(180.0, "down"), (90.0, "left")])
 def test_body_up_poses_a_character_drawn_upside_down_or_lying(registered, degrees, body_up):
@@ -447,7 +447,7 @@ def test_body_up_poses_a_character_drawn_upside_down_or_lying(registered, degree
 
 
 # The humanoid lying head-left with its back to the camera. Measured with the Pose of this
-# commit: 4.7 % of the height with Facing Back and Body Up Left (8.2 when the 3D step read
+# commit: 4.8 % of the height with Facing Back and Body Up Left (8.2 when the 3D step read
 # the facing from the image-x order and turned the body about the view's up), 14.6 with
 # Body Up Left alone.
 def test_a_body_drawn_lying_from_behind_is_turned_about_its_own_axis(registered):

@@ -211,14 +211,14 @@ def test_the_rolled_bind_pose_turns_the_body_about_the_line_of_sight(body_up):
     root = rest.heads[0]
     np.testing.assert_allclose(got.tails, root + (rest.tails - root) @ roll.T, atol=1e-12)
     # Only the top bone turns: the others keep their local rotations.
-    np.testing.assert_allclose(rolled.rotations[1:], bind.rotations[1:])
+    np.testing.assert_allclose(rolled.rotations[1:], bind.rotations[1:], atol=1e-12)
     up = (got.tails[0] - got.heads[0])[[0, 2]]  # image x and y are world x and z
     expected = {"left": [-1.0, 0.0], "down": [0.0, -1.0], "right": [1.0, 0.0]}[body_up]
     np.testing.assert_allclose(up / np.linalg.norm(up), expected, atol=1e-12)
     assert start.rolled_bind(sk, bones, cam.forward, bind, "up") is bind
     held = start.rolled_bind(sk, bones, cam.forward, bind, body_up,
                              fixed=np.arange(sk.n_bones) == 0)
-    np.testing.assert_allclose(held.rotations, bind.rotations)  # a pinned root stays
+    np.testing.assert_allclose(held.rotations, bind.rotations)  # a pinned root: all stay
     with pytest.raises(InputError, match="Body Up must be one of up, left, down, right"):
         start.rolled_bind(sk, bones, cam.forward, bind, "over")
 
@@ -269,5 +269,24 @@ def test_a_bone_under_a_hidden_bone_rolls_with_its_solving_ancestor():
     pinned = np.zeros(sk.n_bones, bool)
     pinned[0] = True
     res = solve_pose3d(sk, emb, cam, pinned=pinned)
-    assert any(w.startswith("Body Up Down was not applied to the pinned bone(s) b0")
-               for w in res.warnings), res.warnings
+    assert any(w.startswith("Body Up Down was not applied in 3D: the pinned root bone(s) "
+                            "b0 keep") for w in res.warnings), res.warnings
+    assert start.applied_body_up(sk, bones, "down", pinned) == "up"
+    assert start.applied_body_up(sk, bones, "down", ~pinned) == "down"
+
+
+def test_a_bone_that_does_not_inherit_rotation_is_rolled_with_the_body():
+    """The chain's fourth bone, under a hidden third one, does not inherit its parent's
+    rotation: it is turned itself so that the whole chain still rolls rigidly."""
+    pts = np.stack([np.zeros(5), np.zeros(5), np.array([0.0, 0.5, 1.0, 1.1, 1.6])], 1)
+    sk = chain_skeleton(pts)
+    sk = replace(sk, inherit_rotation=np.array([True, True, True, False]))
+    bones = np.array([0, 1, 3])
+    cam = front_camera(ortho=True)
+    bind = Pose.identity(sk.n_bones)
+    rest = sk.forward(bind)
+    for body_up in ("left", "down"):
+        rolled = sk.forward(start.rolled_bind(sk, bones, cam.forward, bind, body_up))
+        roll = start.view_roll(cam.forward, body_up)
+        np.testing.assert_allclose(rolled.tails[bones], rest.heads[0] + (
+            rest.tails[bones] - rest.heads[0]) @ roll.T, atol=1e-12)

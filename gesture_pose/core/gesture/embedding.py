@@ -830,12 +830,13 @@ def facing_turn(facing: str, solving: SolvingSkeleton, joints: np.ndarray, camer
 def rolled_in_view(points: np.ndarray, camera: Camera, body_up: str) -> np.ndarray:
     """Points rolled in the image plane so that the character's up points ``body_up`` (ours).
 
-    The turn is about the line of sight through the points' centroid: for an orthographic
-    view every point keeps its depth and the image turns exactly about the centroid's;
-    for a perspective one the image turns about it to first order in the points' spread
-    over their distance from the eye. A character standing in the bind pose is shown
-    lying on its side (``"left"``: its head on the image's left) or upside down
-    (``"down"``), as a handstand or a cartwheel is drawn.
+    The turn is about the camera's viewing direction through the points' centroid (the
+    axis the 3D step rolls its bind pose about, ``depth.start.rolled_bind``), so every
+    point keeps its depth: for an orthographic view the image turns exactly about the
+    centroid's, for a perspective one to first order in the points' spread and their
+    offset from the view's axis over their distance from the eye. A character standing
+    in the bind pose is shown lying on its side (``"left"``: its head on the image's
+    left) or upside down (``"down"``), as a handstand or a cartwheel is drawn.
 
     Args:
         points: World positions, ``(J, 3)``.
@@ -848,9 +849,9 @@ def rolled_in_view(points: np.ndarray, camera: Camera, body_up: str) -> np.ndarr
     Raises:
         InputError: An unknown ``body_up``.
     """
+    roll = view_roll(camera.forward, body_up)
     pts = np.asarray(points, float)
     centre = pts.mean(axis=0)
-    roll = view_roll(camera.view_directions(centre[None])[0], body_up)
     return centre + (pts - centre) @ roll.T
 
 

@@ -314,15 +314,16 @@ def pose_cost(skeleton: Skeleton, solving: SolvingSkeleton, bones: np.ndarray, p
     return cost
 
 
-def _rolled_rest(embedding: Embedding2D, frame: energies.ViewFrame) -> np.ndarray:
+def _rolled_rest(embedding: Embedding2D, frame: energies.ViewFrame,
+                 body_up: str | None = None) -> np.ndarray:
     """The solving skeleton's rest joints rolled as the body is drawn, ``(J, 3)``.
 
-    Turned about the origin by ``Embedding2D.body_up``'s roll (:func:`.start.view_roll`):
-    the link vectors and left/right pairs the label choice reads, as the 3D step's rolled
-    bind pose (:func:`.start.rolled_bind`) shows them.
+    Turned about the origin by ``body_up``'s roll (default ``Embedding2D.body_up``;
+    :func:`.start.view_roll`): the link vectors and left/right pairs the label choice
+    reads, as the 3D step's rolled bind pose (:func:`.start.rolled_bind`) shows them.
     """
     rest = np.asarray(embedding.solving.rest_joints, float)
-    return rest @ start.view_roll(frame.forward, embedding.body_up).T
+    return rest @ start.view_roll(frame.forward, body_up or embedding.body_up).T
 
 
 def bind_links(embedding: Embedding2D, frame: energies.ViewFrame,
@@ -420,9 +421,10 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     # ``admitted``: the labellings these two rules let be solved (the fitted first).
     admitted = np.ones(len(embeddings), bool)
     if opts.read_facing and not limits.facing:
-        rest = _rolled_rest(embedding, frame)
-        facing = np.array([start.drawn_facing(s, e.joints2d, rest, frame,
-                                              body_up=embedding.body_up)
+        body_up = start.applied_body_up(skeleton, np.asarray(s.bones), embedding.body_up,
+                                        solve_kwargs.get("pinned"))
+        rest = _rolled_rest(embedding, frame, body_up)
+        facing = np.array([start.drawn_facing(s, e.joints2d, rest, frame, body_up=body_up)
                            for e in embeddings])
         admitted = facing == facing[0]
     # A labelling that draws more links longer than their bones can be drawn

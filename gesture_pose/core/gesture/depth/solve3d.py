@@ -995,20 +995,18 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
     base = pose if pose is not None else Pose.identity(skeleton.n_bones)
     bones = np.asarray(embedding.solving.bones, dtype=int)
     bind = base.with_rotations(bones, np.tile(np.eye(3), (len(bones), 1, 1)))
-    # A body drawn lying or upside down starts from its bind pose rolled the same way,
-    # about the line of sight through the character.
+    # A body drawn lying or upside down starts from its bind pose rolled the same way; a
+    # pinned root keeps the whole body at its bind rotation: it is then solved upright.
     held = None if pinned is None else np.asarray(pinned, bool)[bones]
     notes = []
-    if embedding.body_up != "up":
+    body_up = start.applied_body_up(skeleton, bones, embedding.body_up, pinned)
+    if body_up != embedding.body_up:
         roots = start.solving_roots(skeleton, bones)
-        if held is not None and np.any(held & roots):
-            names = ", ".join(skeleton.names[int(b)] for b in bones[held & roots])
-            notes.append(f"Body Up {embedding.body_up.capitalize()} was not applied to "
-                         f"the pinned bone(s) {names}: they keep their bind rotation.")
-        state = skeleton.forward(bind)
-        centre = np.concatenate([state.heads[bones], state.tails[bones]]).mean(axis=0)
-        bind = start.rolled_bind(skeleton, bones, camera.view_directions(centre[None])[0],
-                                 bind, embedding.body_up, held)
+        names = ", ".join(skeleton.names[int(b)] for b in bones[held & roots])
+        notes.append(f"Body Up {embedding.body_up.capitalize()} was not applied in 3D: the "
+                     f"pinned root bone(s) {names} keep the body at its bind rotation.")
+        embedding = replace(embedding, body_up=body_up)
+    bind = start.rolled_bind(skeleton, bones, camera.forward, bind, body_up, held)
     setup, X_rest, contacts, names = _setup(skeleton, embedding, camera, bind, opts,
                                             link_confidence, skip, forced)
     embedding = setup.embedding  # the drawn joints as the 3D step reads them

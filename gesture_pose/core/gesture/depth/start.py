@@ -283,7 +283,8 @@ def drawn_facing(solving: SolvingSkeleton, joints2d: np.ndarray, rest_joints: np
     if not len(pairs):
         return 1.0
     across = view_roll(frame.forward, body_up) @ np.asarray(frame.right, float)
-    across_px = np.array([across @ frame.right, across @ frame.up])
+    turn = np.radians(BODY_UPS[body_up])
+    across_px = np.array([np.cos(turn), np.sin(turn)])  # ``across`` in the image
     rest = rest_joints[pairs[:, 0]] - rest_joints[pairs[:, 1]]
     bind = rest @ across
     wide = np.abs(bind) >= min_width * np.maximum(np.linalg.norm(rest, axis=1), 1e-12)
@@ -469,29 +470,72 @@ def solving_roots(skeleton: Skeleton, bones: np.ndarray) -> np.ndarray:
     return out
 
 
-def _turned_roots(skeleton: Skeleton, bones: np.ndarray, bind: Pose, rotation: np.ndarray,
-                  fixed: np.ndarray | None) -> Pose:
-    """The pose with each solving root not ``fixed`` turned about its head.
+def applied_body_up(skeleton: Skeleton, bones: np.ndarray, body_up: str,
+                    pinned: np.ndarray | None) -> str:
+    """The Body Up the 3D step applies (ours).
+
+    ``body_up``, or ``"up"`` when a pinned solving root (:func:`solving_roots`) keeps the
+    whole body at its bind rotation.
+
+    Args:
+        skeleton: The full skeleton.
+        bones: Full-skeleton index of each solving bone, ``(m,)``.
+        body_up: The drawing's Body Up (:data:`BODY_UPS`).
+        pinned: Bones that keep their bind rotation, ``(n,)`` bool (full skeleton), or
+            None.
+
+    Returns:
+        The Body Up the bind pose is rolled by.
+    """
+    bones = np.asarray(bones, int)
+    if body_up == "up" or pinned is None:
+        return body_up
+    held = np.asarray(pinned, bool)[bones] & solving_roots(skeleton, bones)
+    return "up" if held.any() else body_up
+
+
+def _turned_rigidly(skeleton: Skeleton, bones: np.ndarray, bind: Pose, rotation: np.ndarray,
+                    fixed: np.ndarray | None) -> Pose:
+    """The pose with each solving root's subtree turned rigidly about the root's head (ours).
+
+    The roots (:func:`solving_roots`) not ``fixed`` turn, and with each the solving bones
+    below it: every one not ``fixed`` takes the world frame ``rotation`` times its frame in
+    ``bind``, parents first (:meth:`Skeleton.local_rotation_for_frame` on the pose as
+    turned so far). A bone that inherits its parent's rotation keeps its local rotation;
+    one that does not is turned itself. ``fixed`` bones keep their local rotations, and a
+    fixed root keeps the solving bones below it as they are.
 
     Args:
         skeleton: The full skeleton.
         bones: Full-skeleton index of each solving bone, ``(m,)``.
         bind: The pose to turn.
         rotation: The turn, world axes, ``(3, 3)``.
-        fixed: Solving bones left as they are, ``(m,)`` bool (optional).
+        fixed: Solving bones left at their local rotation, ``(m,)`` bool (optional).
 
     Returns:
-        The turned pose (:func:`solving_roots`' bones changed).
+        The turned pose.
     """
     bones = np.asarray(bones, int)
+    keep = np.zeros(len(bones), bool) if fixed is None else np.asarray(fixed, bool)
+    position = {int(b): k for k, b in enumerate(bones)}
     roots = solving_roots(skeleton, bones)
-    if fixed is not None:
-        roots &= ~np.asarray(fixed, bool)
-    state = skeleton.forward(bind)
+    turning = np.zeros(len(bones), bool)
+    for k in np.argsort(bones):  # parents come before children in a Skeleton
+        if roots[k]:
+            turning[k] = not keep[k]
+            continue
+        p = int(skeleton.parents[bones[k]])
+        while p not in position:
+            p = int(skeleton.parents[p])
+        turning[k] = turning[position[p]]
+    target = rotation @ skeleton.forward(bind).frames[bones]
     pose = bind
-    for bone in bones[roots]:
-        rot = skeleton.local_rotation_for_frame(int(bone), rotation @ state.frames[bone], state)
-        pose = pose.with_rotations(np.array([bone]), rot[None])
+    for k in np.argsort(bones):
+        if not turning[k] or keep[k]:
+            continue
+        rot = skeleton.local_rotation_for_frame(int(bones[k]), target[k],
+                                                skeleton.forward(pose))
+        pose = pose.with_rotations(bones[k:k + 1], rot[None])
     return pose
 
 
@@ -499,12 +543,13 @@ def turned_bind(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame, bind
                 fixed: np.ndarray, body_up: str = "up") -> Pose:
     """The bind pose turned half round about the body's up axis in the view (ours).
 
-    For a character drawn turned around (:func:`drawn_facing`), each solving root (a
-    solving bone without solving ancestors, :func:`solving_roots`) not ``fixed`` is turned
-    by 180 degrees about the view's up axis (rolled to ``body_up`` for a body drawn lying
-    or upside down, :func:`view_roll`) through its head before the bones are aimed: aiming
-    keeps a bone's twist (:meth:`Skeleton.aim_local`), so from the unturned bind pose the
-    SQP had to turn the whole body round itself, through the depth of every limb.
+    For a character drawn turned around (:func:`drawn_facing`), the solving skeleton is
+    turned rigidly (:func:`_turned_rigidly`, ``fixed`` bones keeping their local
+    rotations) by 180 degrees about the view's up axis (rolled to ``body_up`` for a body
+    drawn lying or upside down, :func:`view_roll`) through its roots' heads before the
+    bones are aimed: aiming keeps a bone's twist (:meth:`Skeleton.aim_local`), so from
+    the unturned bind pose the SQP had to turn the whole body round itself, through the
+    depth of every limb.
 
     Args:
         skeleton: The full skeleton.
@@ -519,7 +564,7 @@ def turned_bind(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame, bind
     """
     up = view_roll(frame.forward, body_up) @ np.asarray(frame.up, float)
     half = 2.0 * np.outer(up, up) / float(up @ up) - np.eye(3)  # rotation by pi about up
-    return _turned_roots(skeleton, jmap.bones, bind, half, fixed)
+    return _turned_rigidly(skeleton, jmap.bones, bind, half, fixed)
 
 
 #: Which way the character's up points in the drawing, and the quarter turns (degrees,
@@ -554,18 +599,18 @@ def rolled_bind(skeleton: Skeleton, bones: np.ndarray, forward: np.ndarray, bind
                 body_up: str, fixed: np.ndarray | None = None) -> Pose:
     """The bind pose rolled about the line of sight as the drawing shows the body (ours).
 
-    For a character drawn lying or upside down (``Embedding2D.body_up``), each solving
-    root (:func:`solving_roots`) not ``fixed`` is rolled about the viewing direction
-    through its head (:func:`view_roll`), so that the start, the bind-pose priors and the
-    side rules read a bind pose drawn the way the drawing shows it; from the upright bind
-    pose the SQP had to turn the whole body over through its linearization. A rig with one
-    solving root rolls rigidly; several roots each roll about their own heads, which stay
-    where they are.
+    For a character drawn lying or upside down (``Embedding2D.body_up``), the solving
+    skeleton is rolled rigidly about the viewing direction through its roots' heads
+    (:func:`view_roll`, :func:`_turned_rigidly`; ``fixed`` bones keep their local
+    rotations), so that the start, the bind-pose priors and the side rules read a bind
+    pose drawn the way the drawing shows it; from the upright bind pose the SQP had to
+    turn the whole body over through its linearization. Several roots each turn about
+    their own heads, which stay where they are.
 
     Args:
         skeleton: The full skeleton.
         bones: Full-skeleton index of each solving bone, ``(m,)``.
-        forward: The viewing direction at the character, world axes, ``(3,)``.
+        forward: The viewing direction, world axes, ``(3,)``.
         bind: The bind pose.
         body_up: One of :data:`BODY_UPS`.
         fixed: Solving bones left at their bind rotation, ``(m,)`` bool (optional).
@@ -576,7 +621,7 @@ def rolled_bind(skeleton: Skeleton, bones: np.ndarray, forward: np.ndarray, bind
     roll = view_roll(forward, body_up)
     if body_up == "up":
         return bind
-    return _turned_roots(skeleton, bones, bind, roll, fixed)
+    return _turned_rigidly(skeleton, bones, bind, roll, fixed)
 
 
 def _within(rotvec: np.ndarray, limits: np.ndarray, tol: float = 1e-3) -> bool:
