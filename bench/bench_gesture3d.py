@@ -346,6 +346,26 @@ def _save_row(images: list[np.ndarray], path: Path) -> None:
     bpy.data.images.remove(img)
 
 
+def _picture_scene(out_dir: Path):
+    """A fresh scene for the pictures, ``(armature, scene)``.
+
+    The add-on registered, the sample humanoid with a camera from the front, a light;
+    ``out_dir`` created.
+    """
+    import bpy
+
+    import gesture_pose
+    from sample_scenes import builders
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    if not hasattr(bpy.types.Scene, "gesture_pose"):  # once per process
+        gesture_pose.register()
+    arm, _ = _scene("humanoid", HUMANOID_VIEWS["front"])
+    builders.add_light()
+    return arm, bpy.context.scene
+
+
 def pictures(out_dir: Path, pose_name: str = "demo") -> list[Path]:
     """Render the documentation pictures of the 3D step headless (Workbench, 400 px).
 
@@ -358,25 +378,16 @@ def pictures(out_dir: Path, pose_name: str = "demo") -> list[Path]:
     """
     import bpy
 
-    import gesture_pose
     from gesture_pose.blender.operators.pose_drawing import pose_from_drawing
     from gesture_pose.blender.read_armature import read_armature
-    from gesture_pose.blender.read_mesh import read_skinned_meshes
     from gesture_pose.blender.write_pose import apply_pose
     from gesture_pose.core.gesture.depth import solve_pose3d
     from gesture_pose.core.gesture.depth.synthetic import project_embedding
     from gesture_pose.core.gesture.embedding import posed_joints
     from gesture_pose.core.gesture.solving import solving_skeleton
-    from gesture_pose.core.gesture.trace import trace_contours
     from sample_scenes import builders
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    if not hasattr(bpy.types.Scene, "gesture_pose"):  # once per process
-        gesture_pose.register()
-    arm, _ = _scene("humanoid", HUMANOID_VIEWS["front"])
-    scene = bpy.context.scene
-    builders.add_light()
+    arm, scene = _picture_scene(out_dir)
     bind_framed = scene.camera
     side = builders.add_camera(arm, direction=(1.0, 0.0, 0.0), resolution=(400, 400),
                                name="Side")
@@ -387,11 +398,6 @@ def pictures(out_dir: Path, pose_name: str = "demo") -> list[Path]:
     cam = _posed_camera(arm, truth, HUMANOID_VIEWS["front"])
     front = scene.camera
     scene.render.resolution_x = scene.render.resolution_y = 400
-    meshes = read_skinned_meshes(arm, truth.skeleton)
-    traced = trace_contours(meshes.deformed_vertices, meshes.triangles, cam)
-    # Half a unit in front of the contours along their view rays: drawn over the character.
-    strokes = [cam.unproject_at_depth(p, d - 0.5)
-               for p, d in zip(traced.pixels, traced.depths, strict=True)]
 
     def shot(camera_obj, name: str) -> np.ndarray:
         scene.camera = camera_obj
@@ -399,9 +405,8 @@ def pictures(out_dir: Path, pose_name: str = "demo") -> list[Path]:
         return _render(out_dir / f"_{name}.png")
 
     truth_side = shot(side, "truth_side")
-    builders.reset_pose(arm)
-    bpy.context.view_layer.update()
-    sketch = builders.add_grease_pencil("Sketch", strokes, radius=0.005)
+    # Half a unit in front of the contours along their view rays: drawn over the character.
+    sketch = builders.sketch_over(arm, truth.skeleton, cam)
     before = shot(front, "before")
     rep = pose_from_drawing(arm, sketch, cam, insert_keys=False, show_fit=False)
     sketch.hide_render = False
@@ -440,22 +445,13 @@ def body_up_pictures(out_dir: Path) -> Path:
     """
     import bpy
 
-    import gesture_pose
     from gesture_pose.blender.operators.pose_drawing import pose_from_drawing
     from gesture_pose.blender.read_armature import read_armature
-    from gesture_pose.blender.read_mesh import read_skinned_meshes
     from gesture_pose.core.gesture.embedding import posed_joints
     from gesture_pose.core.gesture.solving import solving_skeleton
-    from gesture_pose.core.gesture.trace import trace_contours
     from sample_scenes import builders
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    if not hasattr(bpy.types.Scene, "gesture_pose"):  # once per process
-        gesture_pose.register()
-    arm, _ = _scene("humanoid", HUMANOID_VIEWS["front"])
-    scene = bpy.context.scene
-    builders.add_light()
+    arm, scene = _picture_scene(out_dir)
     bind = read_armature(arm)
     builders.apply_rotations(arm, {**builders.HUMANOID_POSES["raise_left_arm"],
                                    arm.data.bones[0].name: ((0.0, -1.0, 0.0), 180.0)})
@@ -463,13 +459,7 @@ def body_up_pictures(out_dir: Path) -> Path:
     truth = read_armature(arm)
     cam = _posed_camera(arm, truth, HUMANOID_VIEWS["front"])
     scene.render.resolution_x = scene.render.resolution_y = 400
-    meshes = read_skinned_meshes(arm, truth.skeleton)
-    traced = trace_contours(meshes.deformed_vertices, meshes.triangles, cam)
-    strokes = [cam.unproject_at_depth(p, d - 0.5)
-               for p, d in zip(traced.pixels, traced.depths, strict=True)]
-    builders.reset_pose(arm)
-    bpy.context.view_layer.update()
-    sketch = builders.add_grease_pencil("Sketch", strokes, radius=0.005)
+    sketch = builders.sketch_over(arm, truth.skeleton, cam)
     shots, errors = [_render(out_dir / "_before.png")], []
     solving = solving_skeleton(bind.skeleton)
     for body_up in ("up", "down"):

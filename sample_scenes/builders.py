@@ -764,6 +764,37 @@ def joint_positions(arm_obj: bpy.types.Object) -> dict[str, tuple[np.ndarray, np
             for pb in arm_obj.pose.bones}
 
 
+def sketch_over(arm_obj: bpy.types.Object, skeleton, camera, radius: float = 0.005,
+                in_front: float = 0.5, name: str = "Sketch") -> bpy.types.Object:
+    """Trace the posed character into a Grease Pencil drawing over it, then rest it.
+
+    The visible contours of the armature's skinned meshes as posed now
+    (``core.gesture.trace``), drawn ``in_front`` world units nearer the eye than the
+    contours along their view rays; the armature is then put back at rest.
+
+    Args:
+        arm_obj: The posed armature object.
+        skeleton: Its skeleton (``read_armature(arm_obj).skeleton``).
+        camera: The core camera to trace through.
+        radius: Stroke radius, world units.
+        in_front: How far in front of the contours the strokes lie, world units.
+        name: The Grease Pencil object's name.
+
+    Returns:
+        The Grease Pencil object.
+    """
+    from gesture_pose.blender.read_mesh import read_skinned_meshes
+    from gesture_pose.core.gesture.trace import trace_contours
+
+    meshes = read_skinned_meshes(arm_obj, skeleton)
+    traced = trace_contours(meshes.deformed_vertices, meshes.triangles, camera)
+    strokes = [camera.unproject_at_depth(p, d - in_front)
+               for p, d in zip(traced.pixels, traced.depths, strict=True)]
+    reset_pose(arm_obj)
+    bpy.context.view_layer.update()
+    return add_grease_pencil(name, strokes, radius=radius)
+
+
 def reset_pose(arm_obj: bpy.types.Object) -> None:
     """Clear every pose bone's location, rotation (all modes) and scale."""
     for pb in arm_obj.pose.bones:

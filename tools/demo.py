@@ -111,10 +111,8 @@ GESTURE_POSE = "kick_right_leg"
 def gesture_demo() -> None:
     """Whole Pose from the traced contours of a known pose of the sample humanoid."""
     from gesture_pose.blender.operators.pose_drawing import pose_from_drawing
-    from gesture_pose.blender.read_mesh import read_skinned_meshes
     from gesture_pose.blender.read_view import camera_from_object
     from gesture_pose.core.gesture.depth.evaluation import joints_of, pose_error
-    from gesture_pose.core.gesture.trace import trace_contours
     from sample_scenes import builders
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -127,14 +125,8 @@ def gesture_demo() -> None:
     builders.pose_humanoid(arm, GESTURE_POSE)
     bpy.context.view_layer.update()
     truth = read_armature(arm)
-    meshes = read_skinned_meshes(arm, truth.skeleton)
-    traced = trace_contours(meshes.deformed_vertices, meshes.triangles, camera)
     # Drawn a little in front of the character, along the same view rays.
-    strokes = [camera.unproject_at_depth(p, d - 0.5)
-               for p, d in zip(traced.pixels, traced.depths, strict=True)]
-    builders.reset_pose(arm)
-    bpy.context.view_layer.update()
-    sketch = builders.add_grease_pencil("Sketch", strokes, radius=0.004)
+    sketch = builders.sketch_over(arm, truth.skeleton, camera, radius=0.004)
     img_before = render(OUT / "gesture_before.png")
     rep = pose_from_drawing(arm, sketch, camera, insert_keys=True, show_fit=False)
     img_after = render(OUT / "gesture_after.png")
@@ -143,7 +135,8 @@ def gesture_demo() -> None:
     solving = rep.embedding.solving
     err = pose_error(joints_of(solving, bind.skeleton, truth.pose), rep.result.joints3d,
                      bind.skeleton, camera)
-    print(f"Gesture drawing: traced '{GESTURE_POSE}' into {len(strokes)} strokes; Pose keyed "
+    n_strokes = len(sketch.data.layers["Lines"].frames[0].drawing.strokes)
+    print(f"Gesture drawing: traced '{GESTURE_POSE}' into {n_strokes} strokes; Pose keyed "
           f"{len(rep.written)} bones in {rep.seconds:.1f} s (fit {rep.timings['fit']:.1f} s, "
           f"3D {rep.timings['solve3d']:.2f} s), coverage {100 * rep.embedding.coverage:.0f}%")
     print(f"  3D joint error to the known pose: mean {err.mean_error:.1f}% of the height "
