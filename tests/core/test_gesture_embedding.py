@@ -10,7 +10,7 @@ import pytest
 
 from gesture_pose.core.camera import Camera
 from gesture_pose.core.exceptions import InputError
-from gesture_pose.core.gesture import embedding
+from gesture_pose.core.gesture import embedding, solving
 from gesture_pose.core.gesture.candidates import JointCandidates, contour_candidates
 from gesture_pose.core.gesture.consistency import assign_contours
 from gesture_pose.core.gesture.costs import unary_cost
@@ -163,6 +163,28 @@ def test_solving_skeleton_joints_and_exclusion():
     assert sol.bones.tolist() == [0]
     with pytest.raises(InputError, match="Gesture"):
         solving_skeleton(chain, override=np.zeros(3, bool))
+
+
+def test_bones_moving_no_skin_are_not_solved():
+    """A glTF importer marks every joint deforming: an IK pole target (a leaf no vertex is
+    weighted to) is left out, a spine bone without weights of its own but carrying skinned
+    bones below it stays, and without any weights nothing changes."""
+    skel = tree_skeleton()  # root, neck, arm.L, fore.L, arm.R, fore.R
+    weighted = np.array([False, True, True, True, False, True])
+    sol = solving_skeleton(skel, weighted=weighted)
+    assert sol.bones.tolist() == [0, 1, 2, 3, 4, 5]  # arm.R carries fore.R's skin
+    weighted[5] = False  # the right arm moves no skin: a pole target and its child
+    sol = solving_skeleton(skel, weighted=weighted)
+    assert sol.bones.tolist() == [0, 1, 2, 3]
+    np.testing.assert_array_equal(solving.skinned_subtrees(skel, weighted),
+                                  [True, True, True, True, False, False])
+    assert solving_skeleton(skel, weighted=np.zeros(6, bool)).bones.tolist() == list(range(6))
+    # Through the fit: its skin weights decide.
+    cam, arm, pixels, verts, _ = _arm_case()
+    weights = np.zeros((len(verts), 2))
+    weights[:, 0] = 1.0  # all skin on the first bone: the second is a helper
+    emb = fit_drawing([Stroke(pixels)], arm, Pose.identity(2), verts, cam, weights)
+    assert emb.solving.bones.tolist() == [0]
 
 
 def test_sphere_fit_and_capsule_radii():

@@ -868,7 +868,8 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
         pose: Its current pose: sets the view scale and the left/right reference.
         vertices: Rest mesh vertices in world space, ``(V, 3)``.
         camera: The view the drawing was made in.
-        weights: Skin weights ``(V, n_bones)`` or None (distance-based regions).
+        weights: Skin weights ``(V, n_bones)`` or None (distance-based regions); bones
+            moving no skin are not solved (``solving.select_bones``).
         params: Parameters (defaults: the paper's).
         override: Bones of the "Gesture" collection, ``(n,)`` bool, or None.
         solving: A prebuilt solving skeleton (overrides ``override``).
@@ -897,7 +898,9 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
     warnings: list[str] = []
     t0 = time.perf_counter()
     drawing = preprocess(list(strokes), params.preprocess)
-    solving = solving or solving_skeleton(skeleton, override, params.min_bone_epsilons)
+    weighted = None if weights is None else np.asarray(weights).sum(axis=0) > 0.0
+    solving = solving or solving_skeleton(skeleton, override, params.min_bone_epsilons,
+                                          weighted)
     world = posed_joints(solving, skeleton, pose)
     turn, note = facing_turn(facing, solving, world, camera, object_up)
     if turn is not None:

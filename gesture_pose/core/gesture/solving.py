@@ -4,8 +4,10 @@ Gesture drawings show limbs, torso and head; fingers, toes, face and other bones
 smaller than the drawing's resolution cannot be located and follow their parents. A bone
 is kept when it deforms and is at least ``min_bone_epsilons`` resampling steps long, with
 the step measured on the rest skeleton the way the drawing's step is measured on the
-drawing (2% of the bounding-box diagonal). A bone collection named "Gesture" overrides the
-automatic choice.
+drawing (2% of the bounding-box diagonal). Given the skin weights, a bone that moves no
+skin, itself or through the bones below it, is left out too (ours): an importer marks
+every joint of a glTF skin as deforming, IK pole targets and prop sockets included. A bone
+collection named "Gesture" overrides the automatic choice.
 
 Joints where the drawn shape ends (end caps, for the unary cost) are the joints of degree
 one, unless the shape goes on past them: a tail continued by excluded bones (a hand by its
@@ -23,8 +25,27 @@ from ..skeleton import Skeleton
 from .types import SolvingSkeleton
 
 
+def skinned_subtrees(skeleton: Skeleton, weighted: np.ndarray) -> np.ndarray:
+    """Which bones move skin, themselves or through a bone below them, ``(n,)`` bool.
+
+    Args:
+        skeleton: The full skeleton.
+        weighted: Whether each bone has skin weights, ``(n,)`` bool.
+
+    Returns:
+        The mask.
+    """
+    out = np.asarray(weighted, dtype=bool).copy()
+    for i in range(skeleton.n_bones - 1, -1, -1):  # children come after their parents
+        p = int(skeleton.parents[i])
+        if p >= 0 and out[i]:
+            out[p] = True
+    return out
+
+
 def select_bones(skeleton: Skeleton, override: np.ndarray | None = None,
-                 min_bone_epsilons: float = 2.0, epsilon_fraction: float = 0.02) -> np.ndarray:
+                 min_bone_epsilons: float = 2.0, epsilon_fraction: float = 0.02,
+                 weighted: np.ndarray | None = None) -> np.ndarray:
     """Boolean mask of the solving bones, shape ``(n,)``.
 
     Args:
@@ -32,6 +53,8 @@ def select_bones(skeleton: Skeleton, override: np.ndarray | None = None,
         override: Bones of the "Gesture" collection, ``(n,)`` bool, or None.
         min_bone_epsilons: Shortest kept bone in resampling steps.
         epsilon_fraction: Step as a fraction of the rest bounding-box diagonal.
+        weighted: Whether each bone has skin weights, ``(n,)`` bool, or None (not known):
+            bones moving no skin (:func:`skinned_subtrees`) are left out when some do.
 
     Raises:
         InputError: The override is empty or no bone is long enough.
@@ -45,6 +68,8 @@ def select_bones(skeleton: Skeleton, override: np.ndarray | None = None,
     deform = np.asarray(skeleton.deform, dtype=bool)
     if not deform.any():
         deform = np.ones(skeleton.n_bones, dtype=bool)
+    if weighted is not None and np.any(weighted):
+        deform = deform & skinned_subtrees(skeleton, weighted)
     pts = np.concatenate([skeleton.rest_heads[deform], skeleton.rest_tails[deform]])
     eps = epsilon_fraction * float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
     mask = deform & (skeleton.lengths >= min_bone_epsilons * eps)
@@ -177,9 +202,11 @@ def _subtree(joint_parent: np.ndarray, tops: np.ndarray) -> np.ndarray:
 
 
 def solving_skeleton(skeleton: Skeleton, override: np.ndarray | None = None,
-                     min_bone_epsilons: float = 2.0) -> SolvingSkeleton:
+                     min_bone_epsilons: float = 2.0, weighted: np.ndarray | None = None
+                     ) -> SolvingSkeleton:
     """Select the solving bones and build their joint tree (see :func:`select_bones`)."""
-    return build_solving_skeleton(skeleton, select_bones(skeleton, override, min_bone_epsilons))
+    return build_solving_skeleton(skeleton, select_bones(skeleton, override, min_bone_epsilons,
+                                                         weighted=weighted))
 
 
 def symmetric_joint_pairs(solving: SolvingSkeleton) -> np.ndarray:
