@@ -22,6 +22,12 @@ from gesture_pose.core.rotations import exp_map, matrix_to_quat, orthonormalize,
 ASSETS = Path(__file__).resolve().parents[2] / "shared" / "eval-assets"
 ADVENTURER = ASSETS / "humanoid_quaternius_adventurer" / "Adventurer_cmu40poses.glb"
 MOCAP = ASSETS / "mocap_cmu_poses"
+#: Characters with their own animation clips (no CMU poses), by name.
+CLIP_RIGS = {
+    "Wizard": ASSETS / "humanoid_quaternius_wizard" / "Wizard.glb",
+    "Robot": ASSETS / "humanoid_quaternius_robot" / "robot.glb",
+    "raylib girl": ASSETS / "humanoid_girl_raylib" / "girl.glb",
+}
 
 #: The bone the asset aims along a zero-length segment, and the mapped bone whose first
 #: joint ends the real segment (the bone map's ``Neck`` starts at ``Neck1``).
@@ -327,4 +333,71 @@ def posed_drawings(scene, arm, frames, direction) -> list:
         bpy.data.cameras.remove(cam_data)
         out.append((k, data, md, camera,
                     trace_contours(md.deformed_vertices, md.triangles, camera)))
+    return out
+
+
+def load_rig(path: Path):
+    """Open a glTF character in an empty scene; ``(scene, armature object)``.
+
+    The armature is left without an action (its bind pose).
+    """
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.import_scene.gltf(filepath=str(path))
+    scene = bpy.context.scene
+    arm = next(o for o in scene.objects if o.type == "ARMATURE")
+    if arm.animation_data is not None:
+        arm.animation_data.action = None
+    return scene, arm
+
+
+def clip_drawings(scene, arm, direction, skip: tuple[str, ...] = ("Idle",)) -> list:
+    """The middle frame of each of the armature's clips, traced; the armature left at rest.
+
+    Each clip (action) whose name contains none of ``skip`` is assigned in turn, its
+    middle frame read, and the posed character traced through a camera framed on it (as
+    :func:`posed_drawings`).
+
+    Args:
+        scene: The scene.
+        arm: The armature object.
+        direction: From the character towards the camera, ``(3,)``.
+        skip: Parts of the names of clips left out (idle loops stay near the bind pose).
+
+    Returns:
+        ``[(label "clip@frame", ArmatureData, Camera, TracedContours)]``, by clip name.
+    """
+    import bpy
+
+    from gesture_pose.blender.read_armature import read_armature
+    from gesture_pose.blender.read_mesh import read_skinned_meshes
+    from gesture_pose.blender.read_view import camera_from_object
+    from gesture_pose.core.gesture.trace import trace_contours
+    from sample_scenes import builders
+
+    anim = arm.animation_data or arm.animation_data_create()
+    out = []
+    for action in sorted(bpy.data.actions, key=lambda a: a.name):
+        if any(word in action.name for word in skip):
+            continue
+        anim.action = action
+        if anim.action_slot is None and len(action.slots):
+            anim.action_slot = action.slots[0]
+        start, end = action.frame_range
+        k = int(round(0.5 * (start + end)))
+        scene.frame_set(k)
+        bpy.context.view_layer.update()
+        data = read_armature(arm)
+        md = read_skinned_meshes(arm, data.skeleton)
+        cam = builders.add_camera(md.deformed_vertices, direction=direction,
+                                  resolution=(800, 800), margin=1.4, name="Clip camera")
+        camera = camera_from_object(cam, scene)
+        cam_data = cam.data
+        bpy.data.objects.remove(cam)
+        bpy.data.cameras.remove(cam_data)
+        label = action.name.rpartition("|")[2]
+        out.append((f"{label}@{k}", data, camera,
+                    trace_contours(md.deformed_vertices, md.triangles, camera)))
+    anim.action = None
     return out
