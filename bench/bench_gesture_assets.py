@@ -104,8 +104,8 @@ def _pose_row(arm, camera, view: str, k, truth, traced) -> list:
     """One table row: the bind-posed character posed from one traced drawing, twice.
 
     First with the Facing and Body Up an animator gives, then As Seen and Up. The joints
-    compared are the solving skeleton's as the fit builds it (bones moving no skin left
-    out, ``solving.select_bones``).
+    compared are the solving skeleton's as the fit builds it
+    (``embedding.fit_solving_skeleton``: bones moving no skin left out).
     """
     import bpy
 
@@ -118,14 +118,14 @@ def _pose_row(arm, camera, view: str, k, truth, traced) -> list:
         joints_of,
         pose_error,
     )
-    from gesture_pose.core.gesture.solving import solving_skeleton
+    from gesture_pose.core.gesture.embedding import fit_solving_skeleton
     from sample_scenes import builders
 
     builders.reset_pose(arm)
     bpy.context.view_layer.update()
     bind = read_armature(arm)
-    skin = read_skinned_meshes(arm, bind.skeleton).weights.sum(axis=0) > 0.0
-    solving = solving_skeleton(bind.skeleton, bind.gesture_override, weighted=skin)
+    solving = fit_solving_skeleton(bind.skeleton, read_skinned_meshes(arm, bind.skeleton)
+                                   .weights, bind.gesture_override)
     sk = bind.skeleton
     object_up = np.asarray(arm.matrix_world)[:3, 2]
     facing = view_facing(solving, sk, truth.pose, camera, object_up)

@@ -294,6 +294,35 @@ def load_adventurer(corrected: bool = True):
     return scene, arm, rest, meshes
 
 
+def _framed_contours(scene, md, direction) -> tuple:
+    """A camera framed on the posed character and its traced contours.
+
+    The camera (800x800 pixels, margin 1.4) frames the skinned meshes ``md`` as posed;
+    its object is removed once read (the core camera stands alone).
+
+    Args:
+        scene: The scene.
+        md: The posed character's ``SkinnedMeshes``.
+        direction: From the character towards the camera, ``(3,)``.
+
+    Returns:
+        ``(Camera, TracedContours)``.
+    """
+    import bpy
+
+    from gesture_pose.blender.read_view import camera_from_object
+    from gesture_pose.core.gesture.trace import trace_contours
+    from sample_scenes import builders
+
+    cam = builders.add_camera(md.deformed_vertices, direction=direction,
+                              resolution=(800, 800), margin=1.4, name="Framed camera")
+    camera = camera_from_object(cam, scene)
+    cam_data = cam.data
+    bpy.data.objects.remove(cam)
+    bpy.data.cameras.remove(cam_data)
+    return camera, trace_contours(md.deformed_vertices, md.triangles, camera)
+
+
 def posed_drawings(scene, arm, frames, direction) -> list:
     """Each frame's pose read back, its skinned meshes, a camera framed on it, its contours.
 
@@ -315,9 +344,6 @@ def posed_drawings(scene, arm, frames, direction) -> list:
 
     from gesture_pose.blender.read_armature import read_armature
     from gesture_pose.blender.read_mesh import read_skinned_meshes
-    from gesture_pose.blender.read_view import camera_from_object
-    from gesture_pose.core.gesture.trace import trace_contours
-    from sample_scenes import builders
 
     out = []
     for k in frames:
@@ -325,14 +351,7 @@ def posed_drawings(scene, arm, frames, direction) -> list:
         bpy.context.view_layer.update()
         data = read_armature(arm)
         md = read_skinned_meshes(arm, data.skeleton)
-        cam = builders.add_camera(md.deformed_vertices, direction=direction,
-                                  resolution=(800, 800), margin=1.4, name=f"Camera {k}")
-        camera = camera_from_object(cam, scene)
-        cam_data = cam.data
-        bpy.data.objects.remove(cam)
-        bpy.data.cameras.remove(cam_data)
-        out.append((k, data, md, camera,
-                    trace_contours(md.deformed_vertices, md.triangles, camera)))
+        out.append((k, data, md, *_framed_contours(scene, md, direction)))
     return out
 
 
@@ -372,9 +391,6 @@ def clip_drawings(scene, arm, direction, skip: tuple[str, ...] = ("Idle",)) -> l
 
     from gesture_pose.blender.read_armature import read_armature
     from gesture_pose.blender.read_mesh import read_skinned_meshes
-    from gesture_pose.blender.read_view import camera_from_object
-    from gesture_pose.core.gesture.trace import trace_contours
-    from sample_scenes import builders
 
     anim = arm.animation_data or arm.animation_data_create()
     out = []
@@ -390,14 +406,7 @@ def clip_drawings(scene, arm, direction, skip: tuple[str, ...] = ("Idle",)) -> l
         bpy.context.view_layer.update()
         data = read_armature(arm)
         md = read_skinned_meshes(arm, data.skeleton)
-        cam = builders.add_camera(md.deformed_vertices, direction=direction,
-                                  resolution=(800, 800), margin=1.4, name="Clip camera")
-        camera = camera_from_object(cam, scene)
-        cam_data = cam.data
-        bpy.data.objects.remove(cam)
-        bpy.data.cameras.remove(cam_data)
         label = action.name.rpartition("|")[2]
-        out.append((f"{label}@{k}", data, camera,
-                    trace_contours(md.deformed_vertices, md.triangles, camera)))
+        out.append((f"{label}@{k}", data, *_framed_contours(scene, md, direction)))
     anim.action = None
     return out

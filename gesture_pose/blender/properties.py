@@ -69,11 +69,50 @@ def drawing_settings_note(facing: str, body_up: str) -> str:
     Returns:
         The note, empty for As Seen and Up.
     """
-    names = {**{f"facing {i}": n for i, n, _ in DRAWING_FACING_ITEMS},
-             **{f"body_up {i}": n for i, n, _ in DRAWING_BODY_UP_ITEMS}}
-    read = ([f"Facing {names[f'facing {facing}']}"] if facing != "auto" else []) + (
-        [f"Body Up {names[f'body_up {body_up}']}"] if body_up != "up" else [])
+    facing_name = {i: n for i, n, _ in DRAWING_FACING_ITEMS}[facing]
+    body_up_name = {i: n for i, n, _ in DRAWING_BODY_UP_ITEMS}[body_up]
+    read = ([f"Facing {facing_name}"] if facing != "auto" else []) + (
+        [f"Body Up {body_up_name}"] if body_up != "up" else [])
     return f"; read with {', '.join(read)}" if read else ""
+
+
+class DrawingSettingsProperties:
+    """Facing and Body Up on an operator reading a gesture drawing (Pose, Fit Drawing).
+
+    Mix in before ``bpy.types.Operator``. Both are SKIP_SAVE: unset, the operator takes
+    the panel's (:meth:`drawing_settings`), and a panel button passes it
+    (:func:`pass_drawing_settings`) so the redo panel shows the value used.
+    """
+
+    facing: bpy.props.EnumProperty(name="Facing", items=DRAWING_FACING_ITEMS, default="auto",
+                                   options={"SKIP_SAVE"},
+                                   description="Which side of the character the drawing "
+                                   "shows (unset: the panel's Facing)")
+    body_up: bpy.props.EnumProperty(name="Body Up", items=DRAWING_BODY_UP_ITEMS,
+                                    default="up", options={"SKIP_SAVE"},
+                                    description="Which way the character's up points in the "
+                                    "drawing (unset: the panel's Body Up)")
+
+    def drawing_settings(self, context: bpy.types.Context) -> dict[str, str]:
+        """``{"facing": ..., "body_up": ...}`` as this run reads the drawing."""
+        return {name: drawing_setting(self, context, name) for name in _DRAWING_DEFAULTS}
+
+
+def pass_drawing_settings(op, context: bpy.types.Context):
+    """Give a panel's operator button the scene's Facing and Body Up.
+
+    Args:
+        op: The button's operator properties.
+        context: The panel's context.
+
+    Returns:
+        The scene's settings, or None (nothing passed) when the scene has none.
+    """
+    settings = getattr(context.scene, "gesture_pose", None)
+    if settings is not None:
+        for name in _DRAWING_DEFAULTS:
+            setattr(op, name, getattr(settings, name))
+    return settings
 
 
 class GesturePoseSettings(bpy.types.PropertyGroup):

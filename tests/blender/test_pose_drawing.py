@@ -11,14 +11,12 @@ import pytest
 from gesture_pose.blender.operators import fit_drawing as fit_drawing_op
 from gesture_pose.blender.operators import pose_drawing
 from gesture_pose.blender.read_armature import read_armature
-from gesture_pose.blender.read_mesh import read_skinned_meshes
 from gesture_pose.blender.read_view import camera_from_object
 from gesture_pose.blender.write_pose import keyed_frames, rotation_channel
 from gesture_pose.core.gesture.depth import solve_pose3d
 from gesture_pose.core.gesture.depth.synthetic import project_embedding
 from gesture_pose.core.gesture.embedding import posed_joints
 from gesture_pose.core.gesture.solving import solving_skeleton
-from gesture_pose.core.gesture.trace import trace_contours
 from gesture_pose.core.stroke import distance_to_polyline
 from sample_scenes import builders
 
@@ -119,12 +117,8 @@ def test_lifting_recovers_known_poses(registered, kind, pose_name, direction, li
 
 def _sketch_of(arm, truth, cam):
     """The posed ``arm`` (its pose read as ``truth``) traced through ``cam`` into a sketch;
-    the armature is then put back at rest."""
-    meshes = read_skinned_meshes(arm, truth.skeleton)
-    traced = trace_contours(meshes.deformed_vertices, meshes.triangles, cam)
-    builders.reset_pose(arm)
-    bpy.context.view_layer.update()
-    return builders.add_grease_pencil("Sketch", list(traced.world(cam)))
+    the armature is then put back at rest (strokes on the contours themselves)."""
+    return builders.sketch_over(arm, truth.skeleton, cam, radius=0.01, in_front=0.0)
 
 
 def _traced(kind: str, pose_name: str, direction):

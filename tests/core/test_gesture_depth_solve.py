@@ -203,9 +203,9 @@ def test_ik_limits_bound_the_local_rotation():
 def test_the_rolled_bind_pose_turns_the_body_about_the_line_of_sight(body_up):
     sk = tree_skeleton()
     cam = front_camera(ortho=True)
-    bones = np.arange(sk.n_bones)
+    solving = solving_skeleton(sk)  # every bone
     bind = Pose.identity(sk.n_bones)
-    rolled = start.rolled_bind(sk, bones, cam.forward, bind, body_up)
+    rolled = start.rolled_bind(sk, solving, cam.forward, bind, body_up)
     roll = start.view_roll(cam.forward, body_up)
     rest, got = sk.forward(bind), sk.forward(rolled)
     root = rest.heads[0]
@@ -215,12 +215,12 @@ def test_the_rolled_bind_pose_turns_the_body_about_the_line_of_sight(body_up):
     up = (got.tails[0] - got.heads[0])[[0, 2]]  # image x and y are world x and z
     expected = {"left": [-1.0, 0.0], "down": [0.0, -1.0], "right": [1.0, 0.0]}[body_up]
     np.testing.assert_allclose(up / np.linalg.norm(up), expected, atol=1e-12)
-    assert start.rolled_bind(sk, bones, cam.forward, bind, "up") is bind
-    held = start.rolled_bind(sk, bones, cam.forward, bind, body_up,
+    assert start.rolled_bind(sk, solving, cam.forward, bind, "up") is bind
+    held = start.rolled_bind(sk, solving, cam.forward, bind, body_up,
                              fixed=np.arange(sk.n_bones) == 0)
     np.testing.assert_allclose(held.rotations, bind.rotations)  # a pinned root: all stay
     with pytest.raises(InputError, match="Body Up must be one of up, left, down, right"):
-        start.rolled_bind(sk, bones, cam.forward, bind, "over")
+        start.rolled_bind(sk, solving, cam.forward, bind, "over")
 
 
 def test_the_facing_of_a_body_drawn_lying_is_read_against_the_rolled_bind_pose():
@@ -254,25 +254,25 @@ def test_a_bone_under_a_hidden_bone_rolls_with_its_solving_ancestor():
     pts = np.stack([np.zeros(5), np.zeros(5), np.array([0.0, 0.5, 1.0, 1.1, 1.6])], 1)
     sk = chain_skeleton(pts)
     bones = np.array([0, 1, 3])
-    np.testing.assert_array_equal(start.solving_roots(sk, bones), [True, False, False])
+    mask = np.zeros(sk.n_bones, bool)
+    mask[bones] = True
+    solving = build_solving_skeleton(sk, mask)
+    np.testing.assert_array_equal(solving.parent < 0, [True, False, False])
     cam = front_camera(ortho=True)
     bind = Pose.identity(sk.n_bones)
-    rolled = sk.forward(start.rolled_bind(sk, bones, cam.forward, bind, "down"))
+    rolled = sk.forward(start.rolled_bind(sk, solving, cam.forward, bind, "down"))
     rest = sk.forward(bind)
     roll = start.view_roll(cam.forward, "down")
     np.testing.assert_allclose(rolled.tails, rest.heads[0] + (rest.tails - rest.heads[0])
                                @ roll.T, atol=1e-12)
-    mask = np.zeros(sk.n_bones, bool)
-    mask[bones] = True
-    solving = build_solving_skeleton(sk, mask)
     emb = replace(project_embedding(sk, solving, bind, cam), body_up="down")
     pinned = np.zeros(sk.n_bones, bool)
     pinned[0] = True
     res = solve_pose3d(sk, emb, cam, pinned=pinned)
     assert any(w.startswith("Body Up Down was not applied in 3D: the pinned root bone(s) "
                             "b0 keep") for w in res.warnings), res.warnings
-    assert start.applied_body_up(sk, bones, "down", pinned) == "up"
-    assert start.applied_body_up(sk, bones, "down", ~pinned) == "down"
+    assert start.applied_body_up(solving, "down", pinned) == "up"
+    assert start.applied_body_up(solving, "down", ~pinned) == "down"
 
 
 def test_a_bone_that_does_not_inherit_rotation_is_rolled_with_the_body():
@@ -282,11 +282,12 @@ def test_a_bone_that_does_not_inherit_rotation_is_rolled_with_the_body():
     sk = chain_skeleton(pts)
     sk = replace(sk, inherit_rotation=np.array([True, True, True, False]))
     bones = np.array([0, 1, 3])
+    solving = build_solving_skeleton(sk, np.isin(np.arange(sk.n_bones), bones))
     cam = front_camera(ortho=True)
     bind = Pose.identity(sk.n_bones)
     rest = sk.forward(bind)
     for body_up in ("left", "down"):
-        rolled = sk.forward(start.rolled_bind(sk, bones, cam.forward, bind, body_up))
+        rolled = sk.forward(start.rolled_bind(sk, solving, cam.forward, bind, body_up))
         roll = start.view_roll(cam.forward, body_up)
         np.testing.assert_allclose(rolled.tails[bones], rest.heads[0] + (
             rest.tails[bones] - rest.heads[0]) @ roll.T, atol=1e-12)

@@ -37,10 +37,9 @@ from ..operator_utils import (
 )
 from ..panel import GesturePoseSubPanel
 from ..properties import (
-    DRAWING_BODY_UP_ITEMS,
-    DRAWING_FACING_ITEMS,
-    drawing_setting,
+    DrawingSettingsProperties,
     drawing_settings_note,
+    pass_drawing_settings,
 )
 from ..read_armature import ArmatureData, read_armature
 from ..read_mesh import read_skinned_meshes
@@ -228,7 +227,8 @@ def write_traced(name: str, traced: TracedContours, camera: Camera,
     return obj
 
 
-class GESTUREPOSE_OT_fit_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
+class GESTUREPOSE_OT_fit_drawing(GesturePoseOperatorMixin, DrawingSettingsProperties,
+                                 bpy.types.Operator):
     """Find where every joint of the character lies in the gesture drawing."""
 
     bl_idname = "gesture_pose.fit_drawing"
@@ -241,14 +241,6 @@ class GESTUREPOSE_OT_fit_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
                                        "(empty: the one picked in the panel or selected)")
     sketch: bpy.props.StringProperty(name="Sketch", description="Grease Pencil or curve "
                                      "object holding the drawing (empty: automatic)")
-    facing: bpy.props.EnumProperty(name="Facing", items=DRAWING_FACING_ITEMS, default="auto",
-                                   options={"SKIP_SAVE"},
-                                   description="Which side of the character the drawing "
-                                   "shows (unset: the panel's Facing)")
-    body_up: bpy.props.EnumProperty(name="Body Up", items=DRAWING_BODY_UP_ITEMS,
-                                    default="up", options={"SKIP_SAVE"},
-                                    description="Which way the character's up points in the "
-                                    "drawing (unset: the panel's Body Up)")
     show_fit: bpy.props.BoolProperty(name="Show Fit", default=True,
                                      description="Draw the fit on the sketch's "
                                      "'gesture_pose fit' layer (for a curve sketch, on a "
@@ -261,10 +253,8 @@ class GESTUREPOSE_OT_fit_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
         sketch = resolve_sketch(context, self.sketch, arm)
         camera = camera_from_context(context)
         frame = context.scene.frame_current
-        embedding, n_strokes = fit_scene_drawing(arm, sketch, camera, frame,
-                                                 facing=drawing_setting(self, context, "facing"),
-                                                 body_up=drawing_setting(self, context,
-                                                                         "body_up"))
+        read = self.drawing_settings(context)
+        embedding, n_strokes = fit_scene_drawing(arm, sketch, camera, frame, **read)
         if self.show_fit:
             data = read_armature(arm)
             depth = float(np.mean(camera.depth(data.skeleton.forward(data.pose).heads)))
@@ -274,8 +264,7 @@ class GESTUREPOSE_OT_fit_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
         report_result(self, f"Fitted {embedding.solving.n_joints} joints to {n_strokes} "
                             f"strokes in {time.perf_counter() - t0:.2f} s; coverage "
                             f"{100 * embedding.coverage:.0f}%"
-                            + drawing_settings_note(drawing_setting(self, context, "facing"),
-                                                    embedding.body_up))
+                            + drawing_settings_note(**read))
         return {"FINISHED"}
 
 
@@ -327,11 +316,9 @@ class VIEW3D_PT_gesture_pose_gesture(GesturePoseSubPanel, bpy.types.Panel):
     def draw(self, context: bpy.types.Context) -> None:
         """Fit Drawing and Trace Contours buttons."""
         col = self.layout.column(align=True)
-        op = col.operator(GESTUREPOSE_OT_fit_drawing.bl_idname, icon="GREASEPENCIL")
-        settings = getattr(context.scene, "gesture_pose", None)
-        if settings is not None:
-            op.facing = settings.facing  # both shown under Pose
-            op.body_up = settings.body_up
+        # Facing and Body Up are shown under Pose.
+        pass_drawing_settings(col.operator(GESTUREPOSE_OT_fit_drawing.bl_idname,
+                                           icon="GREASEPENCIL"), context)
         col.operator(GESTUREPOSE_OT_trace_contours.bl_idname, icon="MOD_OUTLINE")
         op = col.operator(GESTUREPOSE_OT_trace_contours.bl_idname, text="Trace Rough Drawing")
         op.perturb = True

@@ -35,10 +35,9 @@ from ..operator_utils import (
 )
 from ..panel import GesturePoseSubPanel
 from ..properties import (
-    DRAWING_BODY_UP_ITEMS,
-    DRAWING_FACING_ITEMS,
-    drawing_setting,
+    DrawingSettingsProperties,
     drawing_settings_note,
+    pass_drawing_settings,
 )
 from ..read_armature import read_armature
 from ..read_view import camera_from_context
@@ -209,7 +208,8 @@ def _progress(context) -> tuple[Callable[[float], None], Callable[[], None]]:
     return wm.progress_update, wm.progress_end
 
 
-class GESTUREPOSE_OT_pose_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
+class GESTUREPOSE_OT_pose_drawing(GesturePoseOperatorMixin, DrawingSettingsProperties,
+                                  bpy.types.Operator):
     """Pose the character from the gesture drawing over it and key the pose."""
 
     bl_idname = "gesture_pose.pose_drawing"
@@ -224,14 +224,6 @@ class GESTUREPOSE_OT_pose_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
                                      "holding the drawing (empty: automatic)")
     insert_keys: bpy.props.BoolProperty(name="Insert Keys", default=True,
                                         description="Key the changed bones")
-    facing: bpy.props.EnumProperty(name="Facing", items=DRAWING_FACING_ITEMS, default="auto",
-                                   options={"SKIP_SAVE"},
-                                   description="Which side of the character the drawing "
-                                   "shows (unset: the panel's Facing)")
-    body_up: bpy.props.EnumProperty(name="Body Up", items=DRAWING_BODY_UP_ITEMS,
-                                    default="up", options={"SKIP_SAVE"},
-                                    description="Which way the character's up points in the "
-                                    "drawing (unset: the panel's Body Up)")
     show_fit: bpy.props.BoolProperty(name="Show Fit", default=True,
                                      description=f"Keep the fitted skeleton in the sketch's "
                                      f"'{FIT_LAYER}' layer (off: remove that layer)")
@@ -244,10 +236,8 @@ class GESTUREPOSE_OT_pose_drawing(GesturePoseOperatorMixin, bpy.types.Operator):
         update, end = _progress(context)
         try:
             rep = pose_from_drawing(arm, sketch, camera, insert_keys=self.insert_keys,
-                                    show_fit=self.show_fit,
-                                    facing=drawing_setting(self, context, "facing"),
-                                    body_up=drawing_setting(self, context, "body_up"),
-                                    progress=update)
+                                    show_fit=self.show_fit, progress=update,
+                                    **self.drawing_settings(context))
         finally:
             end()
         for warning in (*rep.warnings, *rep.embedding.warnings, *rep.result.warnings):
@@ -304,12 +294,10 @@ class VIEW3D_PT_gesture_pose_drawing(GesturePoseSubPanel, bpy.types.Panel):
         col = self.layout.column()
         big = col.row()
         big.scale_y = 2.0
-        op = big.operator(GESTUREPOSE_OT_pose_drawing.bl_idname, text="Pose",
-                          icon="ARMATURE_DATA")
-        settings = getattr(context.scene, "gesture_pose", None)
+        settings = pass_drawing_settings(
+            big.operator(GESTUREPOSE_OT_pose_drawing.bl_idname, text="Pose",
+                         icon="ARMATURE_DATA"), context)
         if settings is not None:
-            op.facing = settings.facing
-            op.body_up = settings.body_up
             col.prop(settings, "facing")
             col.prop(settings, "body_up")
         col.operator(GESTUREPOSE_OT_flip_depth.bl_idname, icon="MOD_MIRROR")

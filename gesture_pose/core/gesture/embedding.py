@@ -29,7 +29,7 @@ from .consistency import (
 )
 from .costs import CostParams, unary_cost
 from .depth.energies import view_frame
-from .depth.start import REST_UP, front_direction, rig_up, view_roll
+from .depth.start import REST_UP, front_direction, half_turn, rig_up, view_roll
 from .mrf import (
     MatchProblem,
     build_energy,
@@ -768,11 +768,14 @@ def turned_half_round(points: np.ndarray, up: np.ndarray) -> np.ndarray:
     Returns:
         The turned positions, world units, ``(J, 3)``.
     """
+    return _turned_about_centroid(points, half_turn(up))
+
+
+def _turned_about_centroid(points: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """Points ``(J, 3)`` turned by ``rotation`` ``(3, 3)`` about their centroid."""
     pts = np.asarray(points, float)
-    axis = np.asarray(up, float) / np.linalg.norm(up)
     centre = pts.mean(axis=0)
-    rel = pts - centre
-    return centre + 2.0 * (rel @ axis)[:, None] * axis[None, :] - rel
+    return centre + (pts - centre) @ rotation.T
 
 
 FACINGS = ("auto", "front", "back", "turned")
@@ -849,10 +852,27 @@ def rolled_in_view(points: np.ndarray, camera: Camera, body_up: str) -> np.ndarr
     Raises:
         InputError: An unknown ``body_up``.
     """
-    roll = view_roll(camera.forward, body_up)
-    pts = np.asarray(points, float)
-    centre = pts.mean(axis=0)
-    return centre + (pts - centre) @ roll.T
+    return _turned_about_centroid(points, view_roll(camera.forward, body_up))
+
+
+def fit_solving_skeleton(skeleton: Skeleton, weights: np.ndarray | None = None,
+                         override: np.ndarray | None = None,
+                         params: GestureParams | None = None) -> SolvingSkeleton:
+    """The solving skeleton :func:`fit_drawing` builds when it is not given one.
+
+    Args:
+        skeleton: The character's skeleton.
+        weights: Skin weights ``(V, n_bones)`` or None: bones moving no skin are left out
+            (``solving.select_bones``).
+        override: Bones of the "Gesture" collection, ``(n,)`` bool, or None.
+        params: Parameters (``min_bone_epsilons``; defaults: the paper's).
+
+    Returns:
+        The solving skeleton.
+    """
+    params = params or GestureParams()
+    weighted = None if weights is None else np.asarray(weights).sum(axis=0) > 0.0
+    return solving_skeleton(skeleton, override, params.min_bone_epsilons, weighted)
 
 
 def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices: np.ndarray,
@@ -872,7 +892,8 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
             moving no skin are not solved (``solving.select_bones``).
         params: Parameters (defaults: the paper's).
         override: Bones of the "Gesture" collection, ``(n,)`` bool, or None.
-        solving: A prebuilt solving skeleton (overrides ``override``).
+        solving: A prebuilt solving skeleton (overrides ``override``; default
+            :func:`fit_solving_skeleton`).
         facing: Which side of the character the drawing shows: ``"auto"`` (the side
             ``pose`` shows in this view), ``"front"``, ``"back"`` or ``"turned"`` (see
             :func:`facing_turn`). When it is not the side ``pose`` shows, the fit's
@@ -898,9 +919,7 @@ def fit_drawing(strokes: list[Stroke], skeleton: Skeleton, pose: Pose, vertices:
     warnings: list[str] = []
     t0 = time.perf_counter()
     drawing = preprocess(list(strokes), params.preprocess)
-    weighted = None if weights is None else np.asarray(weights).sum(axis=0) > 0.0
-    solving = solving or solving_skeleton(skeleton, override, params.min_bone_epsilons,
-                                          weighted)
+    solving = solving or fit_solving_skeleton(skeleton, weights, override, params)
     world = posed_joints(solving, skeleton, pose)
     turn, note = facing_turn(facing, solving, world, camera, object_up)
     if turn is not None:

@@ -421,8 +421,7 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     # ``admitted``: the labellings these two rules let be solved (the fitted first).
     admitted = np.ones(len(embeddings), bool)
     if opts.read_facing and not limits.facing:
-        body_up = start.applied_body_up(skeleton, np.asarray(s.bones), embedding.body_up,
-                                        solve_kwargs.get("pinned"))
+        body_up = start.applied_body_up(s, embedding.body_up, solve_kwargs.get("pinned"))
         rest = _rolled_rest(embedding, frame, body_up)
         facing = np.array([start.drawn_facing(s, e.joints2d, rest, frame, body_up=body_up)
                            for e in embeddings])

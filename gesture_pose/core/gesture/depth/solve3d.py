@@ -999,14 +999,15 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
     # pinned root keeps the whole body at its bind rotation: it is then solved upright.
     held = None if pinned is None else np.asarray(pinned, bool)[bones]
     notes = []
-    body_up = start.applied_body_up(skeleton, bones, embedding.body_up, pinned)
+    body_up = start.applied_body_up(embedding.solving, embedding.body_up, pinned)
     if body_up != embedding.body_up:
-        roots = start.solving_roots(skeleton, bones)
+        roots = np.asarray(embedding.solving.parent) < 0
         names = ", ".join(skeleton.names[int(b)] for b in bones[held & roots])
         notes.append(f"Body Up {embedding.body_up.capitalize()} was not applied in 3D: the "
                      f"pinned root bone(s) {names} keep the body at its bind rotation.")
         embedding = replace(embedding, body_up=body_up)
-    bind = start.rolled_bind(skeleton, bones, camera.forward, bind, body_up, held)
+    bind = start.rolled_bind(skeleton, embedding.solving, camera.forward, bind, body_up,
+                             held)
     setup, X_rest, contacts, names = _setup(skeleton, embedding, camera, bind, opts,
                                             link_confidence, skip, forced)
     embedding = setup.embedding  # the drawn joints as the 3D step reads them

@@ -28,7 +28,7 @@ import numpy as np
 
 from ...exceptions import InputError
 from ...names import side_of
-from ...rotations import log_map
+from ...rotations import exp_map, log_map
 from ...skeleton import Pose, PoseState, Skeleton
 from ..solving import symmetric_joint_pairs
 from ..types import Embedding2D, SolvingSkeleton
@@ -444,42 +444,15 @@ def _aim_in_order(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame,
     return pose, signs
 
 
-def solving_roots(skeleton: Skeleton, bones: np.ndarray) -> np.ndarray:
-    """Which solving bones have no solving ancestor, ``(m,)`` bool (ours).
-
-    Turning these about their heads turns the whole solving skeleton with them; a bone
-    under a solving one through bones that do not solve (an arm under a shoulder the
-    drawing does not show) turns with its solving ancestor.
-
-    Args:
-        skeleton: The full skeleton.
-        bones: Full-skeleton index of each solving bone, ``(m,)``.
-
-    Returns:
-        The mask over ``bones``.
-    """
-    bones = np.asarray(bones, int)
-    solving = np.zeros(skeleton.n_bones, bool)
-    solving[bones] = True
-    out = np.ones(len(bones), bool)
-    for k, bone in enumerate(bones):
-        p = int(skeleton.parents[bone])
-        while p >= 0 and out[k]:
-            out[k] = not solving[p]
-            p = int(skeleton.parents[p])
-    return out
-
-
-def applied_body_up(skeleton: Skeleton, bones: np.ndarray, body_up: str,
-                    pinned: np.ndarray | None) -> str:
+def applied_body_up(solving: SolvingSkeleton, body_up: str, pinned: np.ndarray | None
+                    ) -> str:
     """The Body Up the 3D step applies (ours).
 
-    ``body_up``, or ``"up"`` when a pinned solving root (:func:`solving_roots`) keeps the
-    whole body at its bind rotation.
+    ``body_up``, or ``"up"`` when a pinned solving root (a solving bone without solving
+    ancestors, ``SolvingSkeleton.parent``) keeps the whole body at its bind rotation.
 
     Args:
-        skeleton: The full skeleton.
-        bones: Full-skeleton index of each solving bone, ``(m,)``.
+        solving: The solving skeleton.
         body_up: The drawing's Body Up (:data:`BODY_UPS`).
         pinned: Bones that keep their bind rotation, ``(n,)`` bool (full skeleton), or
             None.
@@ -487,27 +460,28 @@ def applied_body_up(skeleton: Skeleton, bones: np.ndarray, body_up: str,
     Returns:
         The Body Up the bind pose is rolled by.
     """
-    bones = np.asarray(bones, int)
     if body_up == "up" or pinned is None:
         return body_up
-    held = np.asarray(pinned, bool)[bones] & solving_roots(skeleton, bones)
+    held = np.asarray(pinned, bool)[solving.bones] & (np.asarray(solving.parent) < 0)
     return "up" if held.any() else body_up
 
 
-def _turned_rigidly(skeleton: Skeleton, bones: np.ndarray, bind: Pose, rotation: np.ndarray,
-                    fixed: np.ndarray | None) -> Pose:
+def _turned_rigidly(skeleton: Skeleton, bones: np.ndarray, parent: np.ndarray, bind: Pose,
+                    rotation: np.ndarray, fixed: np.ndarray | None) -> Pose:
     """The pose with each solving root's subtree turned rigidly about the root's head (ours).
 
-    The roots (:func:`solving_roots`) not ``fixed`` turn, and with each the solving bones
-    below it: every one not ``fixed`` takes the world frame ``rotation`` times its frame in
-    ``bind``, parents first (:meth:`Skeleton.local_rotation_for_frame` on the pose as
-    turned so far). A bone that inherits its parent's rotation keeps its local rotation;
-    one that does not is turned itself. ``fixed`` bones keep their local rotations, and a
-    fixed root keeps the solving bones below it as they are.
+    The roots (solving bones without solving ancestors) not ``fixed`` turn, and with each
+    the solving bones below it: every one not ``fixed`` takes the world frame ``rotation``
+    times its frame in ``bind``, parents first (:meth:`Skeleton.local_rotation_for_frame`
+    on the pose as turned so far). A bone that inherits its parent's rotation keeps its
+    local rotation; one that does not is turned itself. ``fixed`` bones keep their local
+    rotations, and a fixed root keeps the solving bones below it as they are.
 
     Args:
         skeleton: The full skeleton.
-        bones: Full-skeleton index of each solving bone, ``(m,)``.
+        bones: Full-skeleton index of each solving bone, parents first, ``(m,)``.
+        parent: Nearest solving ancestor of each, among ``bones``, -1 for a root, ``(m,)``
+            (``SolvingSkeleton.parent``, ``twist.JointMap.solving_parent``).
         bind: The pose to turn.
         rotation: The turn, world axes, ``(3, 3)``.
         fixed: Solving bones left at their local rotation, ``(m,)`` bool (optional).
@@ -517,22 +491,12 @@ def _turned_rigidly(skeleton: Skeleton, bones: np.ndarray, bind: Pose, rotation:
     """
     bones = np.asarray(bones, int)
     keep = np.zeros(len(bones), bool) if fixed is None else np.asarray(fixed, bool)
-    position = {int(b): k for k, b in enumerate(bones)}
-    roots = solving_roots(skeleton, bones)
     turning = np.zeros(len(bones), bool)
-    for k in np.argsort(bones):  # parents come before children in a Skeleton
-        if roots[k]:
-            turning[k] = not keep[k]
-            continue
-        p = int(skeleton.parents[bones[k]])
-        while p not in position:
-            p = int(skeleton.parents[p])
-        turning[k] = turning[position[p]]
+    for k, p in enumerate(parent):
+        turning[k] = not keep[k] if p < 0 else turning[p]
     target = rotation @ skeleton.forward(bind).frames[bones]
     pose = bind
-    for k in np.argsort(bones):
-        if not turning[k] or keep[k]:
-            continue
+    for k in np.flatnonzero(turning & ~keep):
         rot = skeleton.local_rotation_for_frame(int(bones[k]), target[k],
                                                 skeleton.forward(pose))
         pose = pose.with_rotations(bones[k:k + 1], rot[None])
@@ -563,8 +527,14 @@ def turned_bind(skeleton: Skeleton, jmap: twist.JointMap, frame: ViewFrame, bind
         The turned pose.
     """
     up = view_roll(frame.forward, body_up) @ np.asarray(frame.up, float)
-    half = 2.0 * np.outer(up, up) / float(up @ up) - np.eye(3)  # rotation by pi about up
-    return _turned_rigidly(skeleton, jmap.bones, bind, half, fixed)
+    return _turned_rigidly(skeleton, jmap.bones, jmap.solving_parent, bind, half_turn(up),
+                           fixed)
+
+
+def half_turn(axis: np.ndarray) -> np.ndarray:
+    """The rotation by 180 degrees about ``axis`` (any length), ``2 a a^T - I``, ``(3, 3)``."""
+    a = np.asarray(axis, float)
+    return 2.0 * np.outer(a, a) / float(a @ a) - np.eye(3)
 
 
 #: Which way the character's up points in the drawing, and the quarter turns (degrees,
@@ -589,14 +559,11 @@ def view_roll(forward: np.ndarray, body_up: str) -> np.ndarray:
     if body_up not in BODY_UPS:
         raise InputError(f"Body Up must be one of {', '.join(BODY_UPS)}, not {body_up!r}.")
     axis = -np.asarray(forward, float) / np.linalg.norm(forward)
-    t = np.radians(BODY_UPS[body_up])
-    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]],
-                      [-axis[1], axis[0], 0.0]])
-    return np.cos(t) * np.eye(3) + np.sin(t) * cross + (1.0 - np.cos(t)) * np.outer(axis, axis)
+    return exp_map(np.radians(BODY_UPS[body_up]) * axis)
 
 
-def rolled_bind(skeleton: Skeleton, bones: np.ndarray, forward: np.ndarray, bind: Pose,
-                body_up: str, fixed: np.ndarray | None = None) -> Pose:
+def rolled_bind(skeleton: Skeleton, solving: SolvingSkeleton, forward: np.ndarray,
+                bind: Pose, body_up: str, fixed: np.ndarray | None = None) -> Pose:
     """The bind pose rolled about the line of sight as the drawing shows the body (ours).
 
     For a character drawn lying or upside down (``Embedding2D.body_up``), the solving
@@ -609,7 +576,7 @@ def rolled_bind(skeleton: Skeleton, bones: np.ndarray, forward: np.ndarray, bind
 
     Args:
         skeleton: The full skeleton.
-        bones: Full-skeleton index of each solving bone, ``(m,)``.
+        solving: The solving skeleton (its bones and their solving parents).
         forward: The viewing direction, world axes, ``(3,)``.
         bind: The bind pose.
         body_up: One of :data:`BODY_UPS`.
@@ -621,7 +588,7 @@ def rolled_bind(skeleton: Skeleton, bones: np.ndarray, forward: np.ndarray, bind
     roll = view_roll(forward, body_up)
     if body_up == "up":
         return bind
-    return _turned_rigidly(skeleton, bones, bind, roll, fixed)
+    return _turned_rigidly(skeleton, solving.bones, solving.parent, bind, roll, fixed)
 
 
 def _within(rotvec: np.ndarray, limits: np.ndarray, tol: float = 1e-3) -> bool:
