@@ -327,7 +327,7 @@ def _rolled_rest(embedding: Embedding2D, frame: energies.ViewFrame,
 
 
 def bind_links(embedding: Embedding2D, frame: energies.ViewFrame,
-               options: DepthOptions) -> float:
+               options: DepthOptions, body_up: str | None = None) -> float:
     """How many links the embedding draws as the bind pose shows them (ours).
 
     The sum over the joint tree's links of E_b's agreement
@@ -340,13 +340,15 @@ def bind_links(embedding: Embedding2D, frame: energies.ViewFrame,
         embedding: The 2D embedding.
         frame: The view frame (:func:`.solve3d.rest_front`).
         options: 3D parameters (``bind_sigma``).
+        body_up: The Body Up the 3D step applies (:func:`.start.applied_body_up`;
+            default ``Embedding2D.body_up``).
 
     Returns:
         The summed agreement, links, in ``[0, L]``.
     """
     s = embedding.solving
     a, b = energies.joint_links(np.asarray(s.joint_parent))
-    rest = _rolled_rest(embedding, frame)
+    rest = _rolled_rest(embedding, frame, body_up)
     height = float(np.ptp(rest, axis=0).max())
     return float(energies.bind_agreement(embedding.joints2d, a, b, rest[b] - rest[a], frame,
                                          height, options.bind_sigma).sum())
@@ -410,7 +412,9 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
                            time.perf_counter() - t0)
     costs[0] = pose_cost(skeleton, s, base.bones, base.pose, front, up, limits)
     embeddings = [embedding] + [relabel(embedding, p) for p in swaps[1:]]
-    agree = np.array([bind_links(e, frame, opts) for e in embeddings])
+    # The bind pose as the 3D step rolls it (upright when a pinned root holds the body).
+    body_up = start.applied_body_up(s, embedding.body_up, solve_kwargs.get("pinned"))
+    agree = np.array([bind_links(e, frame, opts, body_up) for e in embeddings])
     # The facing (every pair at once) is the 2D fit's front-facing choice, not a limb's
     # crossing: the agreement does not re-choose it.
     gains = (agree >= agree[0] + limits.bind_links if limits.bind_links is not None
@@ -421,7 +425,6 @@ def choose_labels(skeleton: Skeleton, embedding: Embedding2D, camera: Camera,
     # ``admitted``: the labellings these two rules let be solved (the fitted first).
     admitted = np.ones(len(embeddings), bool)
     if opts.read_facing and not limits.facing:
-        body_up = start.applied_body_up(s, embedding.body_up, solve_kwargs.get("pinned"))
         rest = _rolled_rest(embedding, frame, body_up)
         facing = np.array([start.drawn_facing(s, e.joints2d, rest, frame, body_up=body_up)
                            for e in embeddings])
