@@ -1033,6 +1033,8 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
                                       opts.bind_side, opts.carried_turn, opts.turn_start,
                                       opts.pelvis_front, opts.arm_bend,
                                       np.asarray(opts.rest_up, float), forced)
+    held_bones = bones[held] if held is not None else bones[:0]
+    held_rotations = np.asarray(current.rotations)[held_bones].copy()
     lifted_bones = np.ones(len(signs), bool) if keep is None else ~np.asarray(keep, bool)
     if pinned is not None:
         lifted_bones &= ~np.asarray(pinned, bool)[setup.jmap.bones]
@@ -1134,6 +1136,10 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
             current, symmetric = symmetry.symmetrize(skeleton, current, pairs,
                                                      opts.symmetry_angle, keeps_order)
         timings["symmetry"] = time.perf_counter() - t3
+    if len(held_bones):
+        # Pinned bones end exactly as they started: the QPs hold them only to OSQP's
+        # accuracy (about 1e-3 rad), and a write would key them.
+        current = current.with_rotations(held_bones, held_rotations)
     X, _ = twist.joint_positions(skeleton, jm, current)
     depths = setup.frame.depth(X)
     ok = ordering.violations(setup.order, depths) <= 1e-4 * mean_len
