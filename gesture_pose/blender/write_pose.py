@@ -21,6 +21,7 @@ from mathutils import Matrix, Vector
 from ..core.exceptions import InputError
 from ..core.joint_skeleton import from_joint_pose
 from ..core.skeleton import Pose
+from .constraints import check_writable
 from .read_armature import ArmatureData
 
 _MODE_CHANNEL = {"QUATERNION": "rotation_quaternion", "AXIS_ANGLE": "rotation_axis_angle"}
@@ -97,7 +98,7 @@ def set_rotation(pb: bpy.types.PoseBone, rotation: np.ndarray) -> str:
 def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
                bones: Sequence[int | str] | None = None, insert_keys: bool = True,
                frame: float | None = None, location_bones: Sequence[int | str] = (),
-               tol: float = 1e-6) -> list[str]:
+               tol: float = 1e-6, pin_hint: bool = False) -> list[str]:
     """Write the changed local rotations (and chosen locations) of a pose to the armature.
 
     Args:
@@ -111,13 +112,17 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
         location_bones: Bones whose location is also written and keyed from
             ``new_pose.translations`` (world units, divided by the object scale).
         tol: Bones whose rotation matrix entries change by at most ``tol`` are skipped.
+        pin_hint: The refusal of constrained bones also suggests the ``Pinned`` bone
+            collection (for the modes whose solvers leave pinned bones alone: Pose and
+            the abstraction operators; Pose Stroke keeps them in place by turning them).
 
     Returns:
         Names of the bones written, in skeleton order.
 
     Raises:
-        InputError: The pose does not match the armature or has NaN values (nothing is
-            written).
+        InputError: The pose does not match the armature or has NaN values, or a channel
+            to write is posed by a constraint or driver
+            (:func:`.constraints.check_writable`); nothing is written.
     """
     _check_pose(data, new_pose)
     selected = _indices(data, bones)
@@ -127,6 +132,9 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
     diff = np.abs(np.asarray(new_pose.rotations) - old.rotations).max(axis=(1, 2))
     old_t, new_t = old.translations, np.asarray(new_pose.translations, dtype=float)
     moved = np.abs(new_t - old_t).max(axis=1) > tol
+    names = data.skeleton.names
+    check_writable(arm_obj, [names[i] for i in selected if diff[i] > tol],
+                   [names[i] for i in sorted(with_location) if moved[i]], pin_hint)
     written = []
     for i in sorted(set(selected) | with_location):
         name = data.skeleton.names[i]

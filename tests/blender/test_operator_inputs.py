@@ -620,3 +620,121 @@ def test_edit_stick_figure_reports_a_failed_solve_and_goes_on(registered,
         assert after[part].keys() == before[part].keys()
         for k, v in before[part].items():
             np.testing.assert_array_equal(after[part][k], v)
+
+
+# -- bones posed by constraints or drivers -----------------------------------------------
+# Keys on such bones would not show (Blender evaluates constraints after the pose and
+# drivers over the keys): every writing operator refuses them and changes nothing.
+
+COPY_ROTATION = r"'forearm.L' \(its constraint 'Copy Rotation'\) is posed by constraints"
+
+
+def _constrain(arm, bone: str, kind: str, **settings):
+    c = arm.pose.bones[bone].constraints.new(kind)
+    for key, value in settings.items():
+        setattr(c, key, value)
+    return c
+
+
+def _target(name: str = "Target"):
+    obj = bpy.data.objects.new(name, None)
+    bpy.context.scene.collection.objects.link(obj)
+    obj.location = (0.6, -0.4, 1.9)
+    return obj
+
+
+def test_pose_stroke_refuses_a_chain_a_constraint_poses(registered, returned) -> None:
+    arm, _ = _front_humanoid()
+    cam = bpy.context.scene.camera
+    sketch = builders.add_grease_pencil("Sketch", [builders.chain_stroke(
+        arm, cam, ["upper_arm.L", "forearm.L", "hand.L", "fingers.L"],
+        builders.HUMANOID_POSES["raise_left_arm"])])
+    _preset_keys(arm, "forearm.L", "head")
+    c = _constrain(arm, "forearm.L", "COPY_ROTATION", target=arm, subtarget="head")
+    _refused(returned, "pose_stroke", COPY_ROTATION + r".*set their influence to 0\) to "
+             r"pose these bones here\.$", arm, armature=arm.name, sketch=sketch.name)
+    c.mute = True  # muted, it no longer poses the bone
+    keys = _keys(arm)
+    assert _run("pose_stroke", arm, armature=arm.name, sketch=sketch.name) == {"FINISHED"}
+    assert "forearm.L" in _keyed_bones(arm, keys, FRAME)
+
+
+def test_pose_refuses_an_ik_chain_and_poses_the_rest_once_it_is_pinned(
+        registered, returned, monkeypatch) -> None:
+    """The refusal's advice works: with the IK chain's bones in the Pinned collection,
+    Pose keys the rest and leaves the chain to its constraint."""
+    arm, _ = _front_humanoid()
+    builders.pose_humanoid(arm, "raise_left_arm")
+    builders.apply_rotations(arm, {"thigh.R": ((1.0, 0.0, 0.0), 30.0)})
+    bpy.context.view_layer.update()
+    truth = read_armature(arm)
+    builders.reset_pose(arm)
+    bpy.context.view_layer.update()
+    solving = solving_skeleton(truth.skeleton)
+
+    def oracle(arm_obj, sketch_obj, camera, frame=None, params=None, facing="auto",
+               body_up="up"):
+        skeleton = read_armature(arm_obj).skeleton
+        return project_embedding(skeleton, solving, truth.pose, camera, 0.06, "auto"), 1
+
+    monkeypatch.setattr(pose_drawing, "fit_scene_drawing", oracle)
+    sketch = builders.add_grease_pencil("Sketch", [np.array([[0.0, -1.0, 0.0],
+                                                             [0.1, -1.0, 0.5]])])
+    _constrain(arm, "forearm.L", "IK", target=_target(), chain_count=2)
+    _refused(returned, "pose_drawing", r"'upper_arm.L' \(the IK constraint 'IK' on "
+             r"'forearm.L'\), 'forearm.L' \(the IK constraint 'IK' on 'forearm.L'\) are "
+             r"posed by constraints", arm, armature=arm.name, sketch=sketch.name)
+    pinned = arm.data.collections.new("Pinned")
+    for name in ("upper_arm.L", "forearm.L"):
+        pinned.assign(arm.data.bones[name])
+    keys = _keys(arm)
+    assert _run("pose_drawing", arm, armature=arm.name, sketch=sketch.name) == {"FINISHED"}
+    changed = _keyed_bones(arm, keys, FRAME)
+    assert "thigh.R" in changed and not changed & {"upper_arm.L", "forearm.L"}
+
+
+def test_pose_stick_figure_refuses_a_driven_thigh_and_a_constrained_pelvis(
+        registered, returned) -> None:
+    """The stick mode poses the whole figure (the refusal suggests no pinned bones) and
+    keys the pelvis' location, which a Copy Location constraint takes over."""
+    sc = _stick_scene("stand")
+    arm = sc["armature"]
+    for k, value in enumerate(("1.0", "0.0", "0.0", "0.0")):
+        fc = arm.pose.bones["thigh.L"].driver_add("rotation_quaternion", k)
+        fc.driver.type = "SCRIPTED"
+        fc.driver.expression = value
+    _constrain(arm, "pelvis", "COPY_LOCATION", target=_target())
+    _preset_keys(arm, "thigh.L", "head")
+    _refused(returned, "pose_stick_figure",
+             r"'thigh.L' \(a driver on its rotation_quaternion\).*'pelvis' \(its "
+             r"constraint 'Copy Location', on its location\).* to pose these bones here\.$",
+             arm, armature=arm.name, sketch="Sketch", suggestions=1)
+
+
+def test_flip_depth_refuses_a_limb_with_a_constrained_bone(registered, returned) -> None:
+    arm, _ = _front_humanoid()
+    builders.apply_rotations(arm, {"forearm.L": ((1.0, 0.0, 0.0), 50.0)})
+    bpy.context.view_layer.update()
+    _preset_keys(arm, "forearm.L", "head")
+    _constrain(arm, "hand.L", "DAMPED_TRACK", target=_target())
+    _refused(returned, "flip_depth", r"'hand.L' \(its constraint 'Damped Track'\)", arm,
+             armature=arm.name, bone="forearm.L")
+
+
+def test_drawover_refuses_a_bone_a_constraint_poses(registered, returned) -> None:
+    arm, _ = _abstraction_humanoid()
+    m = np.array(arm.matrix_world)
+    bone = arm.data.bones["forearm.L"]
+    head, tail = (m[:3, :3] @ np.array(v) + m[:3, 3] for v in (bone.head_local,
+                                                             bone.tail_local))
+    source = head + np.linspace(0.15, 0.9, 25)[:, None] * (tail - head) + [0, -0.2, 0]
+    c, s = np.cos(np.radians(50.0)), np.sin(np.radians(50.0))
+    turn = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    sketch = builders.add_grease_pencil("Sketch", [source, (source - head) @ turn.T + head])
+    _preset_keys(arm, "forearm.L", "head")
+    # Aimed along the forearm as it is: the character under the strokes does not move.
+    aim = _target()
+    aim.location = head + 2.0 * (tail - head)
+    _constrain(arm, "forearm.L", "DAMPED_TRACK", target=aim)
+    _refused(returned, "drawover", r"'forearm.L' \(its constraint 'Damped Track'\) is "
+             r"posed.*'Pinned' bone collection", arm, armature=arm.name, sketch=sketch.name)

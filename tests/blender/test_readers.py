@@ -591,3 +591,130 @@ def test_camera_from_context_uses_the_3d_view(bpy_blank):
         camera = camera_from_context(ctx)
         assert (camera.width, camera.height) == (400, 300)
         np.testing.assert_allclose(camera.projection_matrix, np.array(window), atol=1e-7)
+
+
+# -- bones posed by constraints or drivers ----------------------------------------------
+
+#: A straight chain up the z axis: a -> b -> c -> d.
+CHAIN_ROWS = [(n, (0, 0, k), (0, 0, k + 1), p, p is not None, 0.0)
+              for k, (n, p) in enumerate([("a", None), ("b", "a"), ("c", "b"), ("d", "c")])]
+
+
+def _empty(name: str = "Target"):
+    return link(bpy.data.objects.new(name, None))
+
+
+def _constrain(rig, bone: str, kind: str, **settings):
+    c = rig.pose.bones[bone].constraints.new(kind)
+    for key, value in settings.items():
+        setattr(c, key, value)
+    return c
+
+
+def _rotation_overridden(rig) -> dict[str, str]:
+    from gesture_pose.blender.constraints import overrides
+
+    names = [b.name for b in rig.pose.bones]
+    return {n: why for n, why in zip(names, overrides(rig, names).rotation, strict=True)
+            if why}
+
+
+@pytest.mark.parametrize(("count", "use_tail", "expected"), [
+    (2, True, {"d", "c"}), (2, False, {"c", "b"}), (0, True, {"a", "b", "c", "d"}),
+    (1, True, {"d"})])
+def test_an_ik_constraint_takes_over_its_chain(bpy_blank, count, use_tail, expected):
+    rig = build_armature(CHAIN_ROWS)
+    _constrain(rig, "d", "IK", target=_empty(), chain_count=count, use_tail=use_tail)
+    found = _rotation_overridden(rig)
+    assert set(found) == expected
+    assert all(why == "the IK constraint 'IK' on 'd'" for why in found.values())
+
+
+def test_constraints_that_do_not_set_rotation_or_do_not_act_are_ignored(bpy_blank):
+    from gesture_pose.blender.constraints import overrides
+
+    rig = build_armature(CHAIN_ROWS)
+    target = _empty()
+    _constrain(rig, "a", "IK")  # targetless: Blender's Auto IK holds the chain as posed
+    _constrain(rig, "b", "COPY_ROTATION", target=target, mute=True)
+    _constrain(rig, "b", "DAMPED_TRACK", target=target, influence=0.0)
+    _constrain(rig, "c", "COPY_ROTATION")  # no target: invalid, not evaluated
+    _constrain(rig, "c", "LIMIT_ROTATION", use_limit_x=True)
+    _constrain(rig, "c", "COPY_SCALE", target=target)
+    _constrain(rig, "a", "COPY_ROTATION", target=target, mix_mode="ADD")  # an offset
+    _constrain(rig, "a", "CHILD_OF", target=target)  # a parent: the keys still show
+    _constrain(rig, "d", "COPY_LOCATION", target=target)
+    _constrain(rig, "d", "COPY_TRANSFORMS", target=target, mix_mode="AFTER_FULL")
+    assert _rotation_overridden(rig) == {}
+    found = overrides(rig, ["d", "c"])
+    assert found.location == ("its constraint 'Copy Location'", "")
+    # Enabled again (or given its target), the same constraints take over.
+    rig.pose.bones["b"].constraints["Copy Rotation"].mute = False
+    rig.pose.bones["c"].constraints["Copy Rotation"].target = target
+    assert _rotation_overridden(rig) == {"b": "its constraint 'Copy Rotation'",
+                                         "c": "its constraint 'Copy Rotation'"}
+
+
+def test_a_driver_counts_on_the_channel_of_the_bones_rotation_mode(bpy_blank):
+    rig = build_armature(CHAIN_ROWS)
+    fc = rig.pose.bones["b"].driver_add("rotation_euler", 0)
+    fc.driver.type = "SCRIPTED"
+    fc.driver.expression = "0.5"
+    assert _rotation_overridden(rig) == {}  # the bone turns by its quaternion
+    rig.pose.bones["b"].rotation_mode = "XYZ"
+    assert _rotation_overridden(rig) == {"b": "a driver on its rotation_euler"}
+    fc.mute = True
+    assert _rotation_overridden(rig) == {}
+
+
+def test_writing_constrained_bones_is_refused_before_anything_is_written(bpy_blank):
+    from gesture_pose.blender.write_pose import apply_pose
+    from gesture_pose.core.skeleton import Pose
+
+    rig = build_armature(CHAIN_ROWS)
+    _constrain(rig, "c", "DAMPED_TRACK", target=_empty())
+    data = read_armature(rig)
+    turn = np.array(Quaternion((1.0, 0.0, 0.0), 0.4).to_matrix())
+    rotations = np.array(data.pose.rotations)
+    rotations[[1, 2]] = turn
+    pose = Pose(rotations, np.array(data.pose.translations))
+    before = [tuple(pb.rotation_quaternion) for pb in rig.pose.bones]
+    with pytest.raises(InputError, match=r"Nothing was written: 'c' \(its constraint "
+                                         r"'Damped Track'\) is posed by constraints"):
+        apply_pose(rig, data, pose)
+    assert [tuple(pb.rotation_quaternion) for pb in rig.pose.bones] == before
+    assert rig.animation_data is None or rig.animation_data.action is None
+    # Only what is written counts: the free bone 'b' alone is written and keyed.
+    assert apply_pose(rig, data, pose, bones=["b"]) == ["b"]
+
+
+def test_a_generated_rigify_rig_is_named_in_the_refusal(bpy_blank):
+    """Rigify's DEF- bones along the spine and limbs copy its tweak controls: they are
+    refused, and the message says the rig is a generated Rigify rig."""
+    import addon_utils
+
+    from gesture_pose.blender.constraints import check_writable
+
+    addon_utils.enable("rigify", default_set=True)
+    try:
+        import rigify
+
+        rigify.register_rig_parameters()  # the module's enable leaves them out
+        bpy.ops.object.armature_basic_human_metarig_add()
+        bpy.ops.pose.rigify_generate()
+        rig = bpy.context.active_object
+        # The spine's and the limbs' deform bones (shoulders, pelvis sides and breasts
+        # hang from ORG bones unconstrained: keys on them show).
+        deform = [b.name for b in rig.data.bones if b.use_deform
+                  and any(k in b.name for k in ("spine", "thigh", "shin", "upper_arm",
+                                                "forearm", "hand", "foot"))]
+        found = _rotation_overridden(rig)
+        assert len(deform) >= 20 and all(n in found for n in deform)
+        with pytest.raises(InputError, match=r"generated Rigify rig.*'DEF-spine' \(its "
+                                             r"constraint 'Copy Transforms'\)"):
+            check_writable(rig, deform)
+        free = [n for n in ("upper_arm_fk.L", "forearm_fk.L") if n in rig.pose.bones]
+        assert free and not any(n in found for n in free)
+        check_writable(rig, free)  # its FK controls are not posed by constraints
+    finally:
+        addon_utils.disable("rigify", default_set=True)

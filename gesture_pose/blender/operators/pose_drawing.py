@@ -134,7 +134,7 @@ def pose_from_drawing(arm_obj: bpy.types.Object, sketch_obj: bpy.types.Object,
     tick(0.95)
     t2 = time.perf_counter()
     written = apply_pose(arm_obj, data, result.pose, bones=[int(b) for b in result.bones],
-                         insert_keys=insert_keys, frame=frame)
+                         insert_keys=insert_keys, frame=frame, pin_hint=True)
     if sketch_obj.type == "GREASEPENCIL":
         if show_fit:
             draw_fit(sketch_obj, embedding, camera,
