@@ -133,15 +133,17 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
     old_t, new_t = old.translations, np.asarray(new_pose.translations, dtype=float)
     moved = np.abs(new_t - old_t).max(axis=1) > tol
     names = data.skeleton.names
+    order = sorted(set(selected) | with_location)
+    gone = [names[i] for i in order if arm_obj.pose.bones.get(names[i]) is None]
+    if gone:  # checked before anything is written
+        raise InputError(f"Bone '{gone[0]}' no longer exists in '{arm_obj.name}': read the "
+                         "armature again.")
     check_writable(arm_obj, [names[i] for i in selected if diff[i] > tol],
                    [names[i] for i in sorted(with_location) if moved[i]], pin_hint)
     written = []
-    for i in sorted(set(selected) | with_location):
-        name = data.skeleton.names[i]
-        pb = arm_obj.pose.bones.get(name)
-        if pb is None:
-            raise InputError(f"Bone '{name}' no longer exists in '{arm_obj.name}': read the "
-                             "armature again.")
+    for i in order:
+        name = names[i]
+        pb = arm_obj.pose.bones[name]
         channels = []
         if i in selected and diff[i] > tol:
             channels.append(set_rotation(pb, new_pose.rotations[i]))

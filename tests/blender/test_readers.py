@@ -688,6 +688,21 @@ def test_writing_constrained_bones_is_refused_before_anything_is_written(bpy_bla
     assert apply_pose(rig, data, pose, bones=["b"]) == ["b"]
 
 
+def test_a_bone_renamed_since_the_read_stops_the_write_before_it_starts(bpy_blank):
+    from gesture_pose.blender.write_pose import apply_pose
+    from gesture_pose.core.skeleton import Pose
+
+    rig = build_armature(CHAIN_ROWS)
+    data = read_armature(rig)
+    rotations = np.array(data.pose.rotations)
+    rotations[[1, 2]] = np.array(Quaternion((1.0, 0.0, 0.0), 0.4).to_matrix())
+    rig.data.bones["c"].name = "c2"
+    with pytest.raises(InputError, match="Bone 'c' no longer exists in 'Rig'"):
+        apply_pose(rig, data, Pose(rotations, np.array(data.pose.translations)))
+    assert tuple(rig.pose.bones["b"].rotation_quaternion) == (1.0, 0.0, 0.0, 0.0)
+    assert rig.animation_data is None or rig.animation_data.action is None
+
+
 def test_a_generated_rigify_rig_is_named_in_the_refusal(bpy_blank):
     """Rigify's DEF- bones along the spine and limbs copy its tweak controls: they are
     refused, and the message says the rig is a generated Rigify rig."""
