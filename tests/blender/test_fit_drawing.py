@@ -152,6 +152,21 @@ def test_fit_operator_writes_only_its_overlay_layer(registered):
     assert [layer.name for layer in sketch.data.layers] == ["Lines", op.FIT_LAYER]
 
 
+def test_fit_report_names_the_drawing_settings_it_read_with(registered, capfd):
+    """Facing and Body Up stay set on the scene for the next drawing: the report says
+    when they are not As Seen and Up."""
+    arm, _ = _posed("step")
+    sketch = _trace(arm)
+    for kwargs, note in (({}, ""), ({"facing": "back", "body_up": "down"},
+                                    "; read with Facing Back, Body Up Down")):
+        capfd.readouterr()
+        with bpy.context.temp_override(active_object=arm, object=arm):
+            assert bpy.ops.gesture_pose.fit_drawing(armature=arm.name, sketch=sketch.name,
+                                                    **kwargs) == {"FINISHED"}
+        line = next(x for x in capfd.readouterr().out.splitlines() if "Fitted" in x)
+        assert line.endswith("%" + note), line
+
+
 def test_curve_sketch_from_svg_is_accepted(registered):
     """Vector drawings arrive as curve objects (Blender's SVG importer makes curves)."""
     arm, camera = _posed("reach")
