@@ -655,6 +655,53 @@ def test_constraints_that_do_not_set_rotation_or_do_not_act_are_ignored(bpy_blan
                                          "c": "its constraint 'Copy Rotation'"}
 
 
+@pytest.mark.parametrize(("kind", "settings"), [
+    ("COPY_ROTATION", {"mix_mode": "REPLACE"}), ("COPY_ROTATION", {"mix_mode": "ADD"}),
+    ("COPY_ROTATION", {"mix_mode": "BEFORE"}), ("COPY_TRANSFORMS", {"mix_mode": "REPLACE"}),
+    ("COPY_TRANSFORMS", {"mix_mode": "AFTER_FULL"}), ("CHILD_OF", {}), ("ARMATURE", {}),
+    ("DAMPED_TRACK", {}), ("TRACK_TO", {}), ("LOCKED_TRACK", {}), ("STRETCH_TO", {}),
+    ("LIMIT_ROTATION", {"use_limit_x": True, "min_x": -1.0, "max_x": 1.0,
+                        "owner_space": "LOCAL"}),
+    ("IK", {"chain_count": 2}), ("IK", {"chain_count": 2, "pole": True}),
+    ("TRANSFORM", {"map_to": "ROTATION", "mix_mode_rot": "REPLACE"}),
+    ("TRANSFORM", {"map_to": "ROTATION", "mix_mode_rot": "ADD"}), ("COPY_LOCATION", {})])
+def test_a_constraint_counts_exactly_when_blender_undoes_a_keyed_turn(bpy_blank, kind,
+                                                                       settings):
+    """Blender's own evaluation decides: bone 'c' is turned 30 degrees about its x and
+    about its z axis; a constraint counts when the evaluated bone does not follow one of
+    the turns (within 15 degrees). The aiming constraints leave the twist about the aimed
+    axis, Locked Track all but the turn about its locked axis: they count, as the solved
+    rotation would not show."""
+    rig = build_armature(CHAIN_ROWS)
+    target = _empty()
+    target.location = (0.5, -0.7, 4.0)
+    bone = "d" if kind == "IK" else "c"
+    c = rig.pose.bones[bone].constraints.new(kind)
+    if kind == "ARMATURE":
+        slot = c.targets.new()
+        slot.target, slot.subtarget = rig, "a"
+    elif kind != "LIMIT_ROTATION":
+        c.target = target
+    for key, value in settings.items():
+        if key == "pole":
+            c.pole_target = _empty("Pole")
+            c.pole_target.location = (0.0, -2.0, 2.0)
+        else:
+            setattr(c, key, value)
+    assert c.is_valid
+    pb = rig.pose.bones["c"]
+    followed = []
+    for axis in ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)):
+        pb.rotation_quaternion = (1.0, 0.0, 0.0, 0.0)
+        bpy.context.view_layer.update()
+        before = np.array(pb.matrix)[:3, :3]
+        pb.rotation_quaternion = Quaternion(axis, np.radians(30.0))
+        bpy.context.view_layer.update()
+        turn = before.T @ np.array(pb.matrix)[:3, :3]
+        followed.append(np.degrees(np.arccos(np.clip((np.trace(turn) - 1) / 2, -1, 1))))
+    assert ("c" in _rotation_overridden(rig)) == (min(followed) < 15.0), followed
+
+
 def test_a_driver_counts_on_the_channel_of_the_bones_rotation_mode(bpy_blank):
     rig = build_armature(CHAIN_ROWS)
     fc = rig.pose.bones["b"].driver_add("rotation_euler", 0)
