@@ -806,6 +806,51 @@ def reset_pose(arm_obj: bpy.types.Object) -> None:
     bpy.context.view_layer.update()
 
 
+def add_ik_leg(arm_obj: bpy.types.Object, side: str = "R", pole_distance: float = 0.5
+               ) -> None:
+    """Rig a leg of the humanoid with IK, as animators do.
+
+    ``shin.<side>`` is aimed at a control ``foot_ik.<side>`` shaped like the foot (which
+    the foot copies the rotation of), with a pole ``knee_pole.<side>`` in front of the
+    knee (-Y); the controls deform nothing. The pole angle is the quarter turn that keeps
+    the rest pose.
+
+    Args:
+        arm_obj: An armature built by :func:`build_humanoid` (or with the same leg names).
+        side: ``"L"`` or ``"R"``.
+        pole_distance: How far in front of the knee the pole is, world units.
+
+    Raises:
+        RuntimeError: No quarter-turn pole angle keeps the rest pose.
+    """
+    foot_name, shin, thigh = f"foot.{side}", f"shin.{side}", f"thigh.{side}"
+    target, pole_name = f"foot_ik.{side}", f"knee_pole.{side}"
+    bpy.context.view_layer.objects.active = arm_obj
+    bpy.ops.object.mode_set(mode="EDIT")
+    bones = arm_obj.data.edit_bones
+    foot, knee = bones[foot_name], bones[shin].head.copy()
+    control = bones.new(target)
+    control.head, control.tail, control.roll = foot.head, foot.tail, foot.roll
+    pole = bones.new(pole_name)
+    pole.head = knee + Vector((0.0, -pole_distance, 0.0))
+    pole.tail = knee + Vector((0.0, -pole_distance - 0.1, 0.0))
+    control.use_deform = pole.use_deform = False
+    bpy.ops.object.mode_set(mode="OBJECT")
+    ik = arm_obj.pose.bones[shin].constraints.new("IK")
+    ik.target, ik.subtarget, ik.chain_count = arm_obj, target, 2
+    ik.pole_target, ik.pole_subtarget = arm_obj, pole_name
+    copy = arm_obj.pose.bones[foot_name].constraints.new("COPY_ROTATION")
+    copy.target, copy.subtarget = arm_obj, target
+    rest = {n: np.array(arm_obj.pose.bones[n].matrix) for n in (thigh, shin)}
+    for angle in (-90.0, 90.0, 0.0, 180.0):
+        ik.pole_angle = math.radians(angle)
+        bpy.context.view_layer.update()
+        if all(np.allclose(np.array(arm_obj.pose.bones[n].matrix), m, atol=1e-4)
+               for n, m in rest.items()):
+            return
+    raise RuntimeError(f"No pole angle keeps the rest pose of the {side} leg.")
+
+
 def _set_local_rotation(pb: bpy.types.PoseBone, quat: Quaternion) -> None:
     """Write a local rotation in the pose bone's current rotation mode."""
     mode = pb.rotation_mode

@@ -6,7 +6,9 @@ Transforms constraint or an IK chain poses therefore does not show, and the solv
 have posed the character for nothing (a generated Rigify rig's deform bones, ``DEF-*``,
 all copy its controls). :func:`overrides` reads, for each bone, what would take over its
 rotation and its location, so that :func:`check_writable` refuses to write there and says
-what to change instead.
+what to change instead, unless :func:`plan_redirects` finds the control such a bone
+follows (a copied rotation, an IK chain's target and pole), which
+:func:`.controls.pose_controls` then poses in its place.
 
 What counts: a constraint that is enabled, valid (Blender can evaluate it: its targets
 exist) and has a non-zero influence, of a kind that replaces the channel (Copy Rotation
@@ -117,6 +119,44 @@ def _driven(arm_obj: bpy.types.Object) -> dict[tuple[str, str], str]:
     return out
 
 
+def _takers(arm_obj: bpy.types.Object, names: Sequence[str]
+            ) -> tuple[dict[str, list], dict[str, list]]:
+    """Everything that takes over each named bone's rotation and location.
+
+    Returns:
+        ``(rotation, location)``: per name, a list of ``(reason, owner pose bone,
+        constraint)`` (owner and constraint None for a driver), in evaluation order.
+    """
+    from .write_pose import rotation_channel
+
+    rotation: dict[str, list] = {n: [] for n in names}
+    location: dict[str, list] = {n: [] for n in names}
+    for pb in arm_obj.pose.bones:
+        for c in pb.constraints:
+            if not _counts(c):
+                continue
+            if c.type in _CHAINS:
+                why = f"the {c.type.replace('_', ' ')} constraint '{c.name}' on '{pb.name}'"
+                for name in _chain(pb, c):
+                    if name in rotation:
+                        rotation[name].append((why, pb, c))
+                continue
+            rot, loc = _channels(c)
+            if pb.name in rotation and rot:
+                rotation[pb.name].append((f"its constraint '{c.name}'", pb, c))
+            if pb.name in location and loc:
+                location[pb.name].append((f"its constraint '{c.name}'", pb, c))
+    for (bone, prop), reason in _driven(arm_obj).items():
+        pb = arm_obj.pose.bones.get(bone)
+        if pb is None or bone not in rotation:
+            continue
+        if prop == rotation_channel(pb.rotation_mode):
+            rotation[bone].append((reason, None, None))
+        if prop == "location":
+            location[bone].append((reason, None, None))
+    return rotation, location
+
+
 def overrides(arm_obj: bpy.types.Object, names: Sequence[str]) -> Overrides:
     """What takes over the rotation and location of each named pose bone.
 
@@ -125,36 +165,148 @@ def overrides(arm_obj: bpy.types.Object, names: Sequence[str]) -> Overrides:
         names: Bone names, in the order wanted.
 
     Returns:
-        The reasons per bone (empty strings where keys show).
+        The reasons per bone (the first that takes it over; empty strings where keys
+        show).
     """
-    from .write_pose import rotation_channel
+    rotation, location = _takers(arm_obj, names)
+    return Overrides(tuple(rotation[n][0][0] if rotation[n] else "" for n in names),
+                     tuple(location[n][0][0] if location[n] else "" for n in names))
 
-    rotation = {n: "" for n in names}
-    location = dict(rotation)
-    for pb in arm_obj.pose.bones:
-        for c in pb.constraints:
-            if not _counts(c):
-                continue
-            if c.type in _CHAINS:
-                for name in _chain(pb, c):
-                    if name in rotation and not rotation[name]:
-                        rotation[name] = (f"the {c.type.replace('_', ' ')} constraint "
-                                          f"'{c.name}' on '{pb.name}'")
-                continue
-            rot, loc = _channels(c)
-            if pb.name in rotation and rot and not rotation[pb.name]:
-                rotation[pb.name] = f"its constraint '{c.name}'"
-            if pb.name in location and loc and not location[pb.name]:
-                location[pb.name] = f"its constraint '{c.name}'"
-    for (bone, prop), reason in _driven(arm_obj).items():
-        pb = arm_obj.pose.bones.get(bone)
-        if pb is None or bone not in rotation:
+
+@dataclass(frozen=True)
+class IkChain:
+    """An IK chain posed by moving its target (and its pole) to the solved pose.
+
+    Attributes:
+        bone: The bone carrying the IK constraint.
+        chain: The bones it poses, that bone first when ``use_tail``, upwards.
+        use_tail: Whether the chain ends at the bone's tail (else at its head).
+        target: The target bone (in the same armature).
+        head_tail: Where along the target bone the chain's end goes (0 head, 1 tail).
+        pole: The pole target bone, or ``""``.
+    """
+
+    bone: str
+    chain: tuple[str, ...]
+    use_tail: bool
+    target: str
+    head_tail: float
+    pole: str
+
+
+@dataclass(frozen=True)
+class Redirects:
+    """Controls through which constrained bones are posed (ours).
+
+    Attributes:
+        copies: ``{owner: (source, whole)}``: the owner copies the source bone's world
+            rotation (a Copy Rotation on every axis, or with ``whole`` a Copy
+            Transforms: also its head), mixed by Replace in world space at full
+            influence; the source is given the owner's solved rotation.
+        chains: IK chains whose targets are moved to the solved chain's end.
+    """
+
+    copies: dict[str, tuple[str, bool]]
+    chains: tuple[IkChain, ...]
+
+    @property
+    def handled(self) -> set[str]:
+        """The constrained bones these controls pose."""
+        return set(self.copies) | {n for c in self.chains for n in c.chain}
+
+    @property
+    def controls(self) -> set[str]:
+        """The bones written in their place."""
+        return ({s for s, _ in self.copies.values()} | {c.target for c in self.chains}
+                | {c.pole for c in self.chains if c.pole})
+
+
+def _own_bone(arm_obj, obj, sub: str) -> str:
+    """``sub`` when ``obj`` is this armature and it has that bone, else ``""``."""
+    return sub if obj == arm_obj and sub and sub in arm_obj.pose.bones else ""
+
+
+def _copy_source(arm_obj, c) -> tuple[str, bool] | None:
+    """The bone a Copy Rotation/Transforms constraint gives its owner's rotation of."""
+    if c.type not in ("COPY_ROTATION", "COPY_TRANSFORMS") or c.influence < 1.0:
+        return None
+    if c.mix_mode != "REPLACE" or c.owner_space != "WORLD" or c.target_space != "WORLD":
+        return None
+    if c.type == "COPY_ROTATION" and not (c.use_x and c.use_y and c.use_z) or any(
+            getattr(c, f"invert_{a}", False) for a in "xyz"):
+        return None
+    source = _own_bone(arm_obj, c.target, c.subtarget)
+    return (source, c.type == "COPY_TRANSFORMS") if source else None
+
+
+def _ik_chain(arm_obj, pb, c) -> IkChain | None:
+    """The chain of an IK constraint that its target bone can pose, or None."""
+    if c.type != "IK" or c.influence < 1.0 or c.use_rotation:
+        return None
+    target = _own_bone(arm_obj, c.target, c.subtarget)
+    pole = _own_bone(arm_obj, c.pole_target, c.pole_subtarget)
+    if not target or (c.pole_target is not None and not pole):
+        return None
+    return IkChain(pb.name, tuple(_chain(pb, c)), bool(c.use_tail), target,
+                   float(getattr(c, "head_tail", 0.0)), pole)
+
+
+def plan_redirects(arm_obj: bpy.types.Object, rotations: Sequence[str],
+                   allowed: Sequence[str]) -> Redirects:
+    """The constrained bones among ``rotations`` that controls can pose instead (ours).
+
+    A bone is posed through a control when exactly one thing takes its rotation over
+    and that is a Copy Rotation or Copy Transforms constraint copying another bone's
+    world rotation whole (Replace, world spaces, full influence: a foot following its IK
+    control), or an IK constraint at full influence (without rotation matching) whose
+    target, and pole if any, are bones of the armature: the target is moved to the
+    solved chain's end and the pole turned with the chain, so that Blender's IK gives
+    the solved chain back. Every bone of such a chain must be ``allowed`` to change, and
+    the controls must be controls (bones that deform nothing: a deforming bone such as
+    the head is part of the character, which the write must not move unasked), free
+    (nothing takes them over) and not written themselves.
+
+    Not on a generated Rigify rig (``rig_id`` on its armature): its deform bones copy
+    its tweak controls, and keys on those would fight its FK and IK controls.
+
+    Args:
+        arm_obj: The armature object.
+        rotations: Bones whose solved rotation is about to be written.
+        allowed: Bones the write may change (a chain moves as a whole).
+
+    Returns:
+        The redirects; bones not covered keep their refusal (:func:`check_writable`).
+    """
+    if arm_obj.data.get("rig_id") is not None:
+        # A generated Rigify rig: its deform bones copy tweak controls, which animators
+        # use as offsets over its FK and IK controls; keys there would fight those.
+        return Redirects({}, ())
+    rotation, _ = _takers(arm_obj, rotations)
+    allowed_set, written = set(allowed), set(rotations)
+    copies: dict[str, tuple[str, bool]] = {}
+    chains: dict[str, IkChain] = {}
+    for name in rotations:
+        if len(rotation[name]) != 1 or rotation[name][0][2] is None:
             continue
-        if prop == rotation_channel(pb.rotation_mode) and not rotation[bone]:
-            rotation[bone] = reason
-        if prop == "location" and not location[bone]:
-            location[bone] = reason
-    return Overrides(tuple(rotation[n] for n in names), tuple(location[n] for n in names))
+        _, owner, c = rotation[name][0]
+        if c.type == "IK":
+            chain = _ik_chain(arm_obj, owner, c)
+            if chain is not None and set(chain.chain) <= allowed_set:
+                chains[chain.bone] = chain
+        else:
+            source = _copy_source(arm_obj, c)
+            if source is not None:
+                copies[name] = source
+    controls = ({s for s, _ in copies.values()} | {c.target for c in chains.values()}
+                | {c.pole for c in chains.values() if c.pole})
+    rot_c, loc_c = _takers(arm_obj, sorted(controls))
+    busy = {n for n in controls if rot_c[n] or loc_c[n] or n in written
+            or arm_obj.data.bones[n].use_deform}  # a control moves no skin itself
+    copies = {o: s for o, s in copies.items() if s[0] not in busy}
+    in_chains, _ = _takers(arm_obj, [n for c in chains.values() for n in c.chain])
+    kept = tuple(c for c in chains.values() if c.target not in busy and c.pole not in busy
+                 and all(len(in_chains[n]) == 1 for n in c.chain))
+    return Redirects(copies, kept)
 
 
 def check_writable(arm_obj: bpy.types.Object, rotations: Sequence[str],

@@ -21,7 +21,8 @@ from mathutils import Matrix, Vector
 from ..core.exceptions import InputError
 from ..core.joint_skeleton import from_joint_pose
 from ..core.skeleton import Pose
-from .constraints import check_writable
+from .constraints import check_writable, plan_redirects
+from .controls import pose_controls
 from .read_armature import ArmatureData
 
 _MODE_CHANNEL = {"QUATERNION": "rotation_quaternion", "AXIS_ANGLE": "rotation_axis_angle"}
@@ -117,17 +118,25 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
             the abstraction operators; Pose Stroke keeps them in place by turning them).
 
     Returns:
-        Names of the bones written, in skeleton order.
+        Names of the bones written, in skeleton order (with the controls moved in place
+        of constrained bones).
+
+    Bones whose rotation a constraint takes over are posed through the control it
+    follows when there is one (:func:`.constraints.plan_redirects`: a copied rotation,
+    an IK chain's target and pole; :func:`.controls.pose_controls` checks Blender's
+    evaluation gives the solved pose back); keys go on the controls, not on them.
 
     Raises:
         InputError: The pose does not match the armature or has NaN values, or a channel
-            to write is posed by a constraint or driver
-            (:func:`.constraints.check_writable`); nothing is written.
+            to write is posed by a constraint or driver that no control poses
+            (:func:`.constraints.check_writable`), or the controls do not give the
+            solved pose back; nothing is written (what was set is put back).
     """
     _check_pose(data, new_pose)
     selected = _indices(data, bones)
     with_location = set(_indices(data, location_bones))
     frame = bpy.context.scene.frame_current if frame is None else frame
+    solved = new_pose
     old, new_pose = blender_pose(data, data.pose), blender_pose(data, new_pose)
     diff = np.abs(np.asarray(new_pose.rotations) - old.rotations).max(axis=(1, 2))
     old_t, new_t = old.translations, np.asarray(new_pose.translations, dtype=float)
@@ -138,25 +147,53 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
     if gone:  # checked before anything is written
         raise InputError(f"Bone '{gone[0]}' no longer exists in '{arm_obj.name}': read the "
                          "armature again.")
-    check_writable(arm_obj, [names[i] for i in selected if diff[i] > tol],
+    rotating = [names[i] for i in selected if diff[i] > tol]
+    plan = plan_redirects(arm_obj, rotating, [names[i] for i in selected])
+    handled = plan.handled
+    check_writable(arm_obj, [n for n in rotating if n not in handled],
                    [names[i] for i in sorted(with_location) if moved[i]], pin_hint)
-    written = []
+    saved = _channel_values(arm_obj, [names[i] for i in order] + sorted(plan.controls))
+    channels: dict[str, list[str]] = {}
     for i in order:
         name = names[i]
         pb = arm_obj.pose.bones[name]
-        channels = []
-        if i in selected and diff[i] > tol:
-            channels.append(set_rotation(pb, new_pose.rotations[i]))
+        if i in selected and diff[i] > tol and name not in handled:
+            channels.setdefault(name, []).append(set_rotation(pb, new_pose.rotations[i]))
         if i in with_location and moved[i]:
             pb.location = new_t[i] / data.object_scale
-            channels.append("location")
-        if not channels:
-            continue
-        if insert_keys:
-            for channel in channels:
-                pb.keyframe_insert(channel, frame=frame, group=name)
-        written.append(name)
-    return written
+            channels.setdefault(name, []).append("location")
+    if plan.copies or plan.chains:
+        try:
+            channels.update(pose_controls(arm_obj, data, solved, plan))
+        except InputError:
+            _restore(arm_obj, saved)
+            raise
+    if insert_keys:
+        for name, written in channels.items():
+            for channel in written:
+                arm_obj.pose.bones[name].keyframe_insert(channel, frame=frame, group=name)
+    position = {n: i for i, n in enumerate(names)}
+    return sorted(channels, key=lambda n: position.get(n, len(names)))
+
+
+def _channel_values(arm_obj: bpy.types.Object, names: Sequence[str]) -> dict:
+    """Every rotation channel, location and scale of the named pose bones, as they are."""
+    out = {}
+    for name in dict.fromkeys(names):
+        pb = arm_obj.pose.bones[name]
+        out[name] = {c: tuple(getattr(pb, c)) for c in ("rotation_quaternion", "rotation_euler",
+                                                       "rotation_axis_angle", "location",
+                                                       "scale")}
+    return out
+
+
+def _restore(arm_obj: bpy.types.Object, saved: dict) -> None:
+    """Put back what :func:`_channel_values` read."""
+    for name, values in saved.items():
+        pb = arm_obj.pose.bones[name]
+        for channel, value in values.items():
+            setattr(pb, channel, value)
+    bpy.context.view_layer.update()
 
 
 def keyed_frames(arm_obj: bpy.types.Object, bone_name: str, channel: str) -> list[float]:

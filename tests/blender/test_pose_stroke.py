@@ -268,3 +268,27 @@ def test_stroke_index_and_remove_used_strokes(scene) -> None:
     left = builders.read_strokes(gp)
     assert len(left) == 1
     np.testing.assert_allclose(left[0], strokes[1], atol=1e-5)
+
+
+LEG_CHAIN = ["thigh.R", "shin.R", "foot.R", "toe.R"]
+
+
+def test_a_leg_rigged_with_ik_follows_the_stroke_through_its_controls(scene) -> None:
+    """The leg's IK target and pole are moved (and keyed) so that Blender's IK gives
+    the solved leg back: the same joints as the rig without IK posed by the same stroke;
+    the leg's own bones get no keys."""
+    arm, _, cam, gp = scene
+    stroke = builders.chain_stroke(arm, cam, LEG_CHAIN,
+                                   builders.HUMANOID_POSES["kick_right_leg"])
+    builders.add_strokes(gp, [stroke])
+    assert pose_stroke(armature=arm.name, sketch=gp.name, insert_keys=False) == {"FINISHED"}
+    plain = projected_chain(arm, cam, LEG_CHAIN)
+    builders.reset_pose(arm)
+    builders.add_ik_leg(arm, "R")
+    assert pose_stroke(armature=arm.name, sketch=gp.name) == {"FINISHED"}
+    rigged = projected_chain(arm, cam, LEG_CHAIN)  # as Blender evaluates it, IK included
+    assert np.abs(rigged - plain).max() < 1.0  # pixels
+    assert keyed_frames(arm, "foot_ik.R", "location") == [5.0]
+    assert keyed_frames(arm, "knee_pole.R", "location") == [5.0]
+    for name in ("thigh.R", "shin.R", "foot.R"):
+        assert keyed_frames(arm, name, "rotation_quaternion") == []

@@ -18,6 +18,7 @@ from gesture_pose.blender.read_mesh import read_skinned_meshes
 from gesture_pose.blender.stick_io import read_pins
 from gesture_pose.blender.write_pose import keyed_frames
 from gesture_pose.core.stick.genetic import GAConfig
+from sample_scenes import builders
 from sample_scenes import stick_builders as sb
 
 bpy = pytest.importorskip("bpy")
@@ -93,6 +94,45 @@ def test_standing_pose_and_suggestions(registered):
     with _ops(arm):
         bpy.ops.gesture_pose.next_suggestion(step=-1)
     assert np.allclose(read_armature(arm).pose.rotations, first, atol=1e-6)
+
+
+def test_legs_rigged_with_ik_are_posed_through_their_controls(registered):
+    """Both legs rigged with IK (foot controls and knee poles): Blender's evaluation of
+    the rig gives the first suggestion's legs, near the drawn pose; the controls are
+    keyed, the legs' own bones are not."""
+    from gesture_pose.core.skeleton import Pose
+    from gesture_pose.core.stick.figure import character_figure
+
+    sc = sb.build_stick_scene("stand", noise_px=1.5, seed=1)
+    arm = sc["armature"]
+    sb.pose_stick_humanoid(arm, "stand")
+    truth = sb.stick_joints(arm)
+    sb.pose_stick_humanoid(arm, "rest")
+    for side in ("L", "R"):
+        builders.add_ik_leg(arm, side)
+    bpy.context.scene.frame_set(3)
+    with _ops(arm):
+        for joint in ("ankle.L", "ankle.R"):
+            assert bpy.ops.gesture_pose.pin_joint(armature=arm.name, sketch="Sketch",
+                                                  joint=joint, candidate=0) == {"FINISHED"}
+        assert bpy.ops.gesture_pose.pose_stick_figure(
+            armature=arm.name, sketch="Sketch", suggestions=2, seed=1) == {"FINISHED"}
+    stored = json.loads(bpy.context.scene["gesture_pose_stick_suggestions"])
+    data = read_armature(arm)
+    state = data.skeleton.forward(Pose(np.array(stored["rotations"][0]),
+                                       np.array(stored["translations"][0])))
+    figure, _ = character_figure(data.skeleton, data.ik_limits)
+    want = dict(zip(figure.joint_names, figure.joint_positions(state.heads, state.tails),
+                    strict=True))
+    got = sb.stick_joints(arm)  # as Blender evaluates the rig, IK included
+    legs = ("pelvis", "knee.L", "knee.R", "ankle.L", "ankle.R")
+    for name in legs:
+        np.testing.assert_allclose(got[name], want[name], atol=2e-3, err_msg=name)
+    assert np.mean([np.linalg.norm(got[n] - truth[n]) for n in legs]) < 0.08
+    assert abs(got["ankle.L"][2] - got["ankle.R"][2]) < 1e-3
+    for side in ("L", "R"):
+        assert keyed_frames(arm, f"foot_ik.{side}", "location") == [3.0]
+        assert keyed_frames(arm, f"thigh.{side}", "rotation_quaternion") == []
 
 
 def test_lying_pose_at_a_seed_the_search_used_to_miss(registered):

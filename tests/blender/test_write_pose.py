@@ -171,3 +171,129 @@ def test_euler_mode_keys_rotation_euler(two_root_rig):
     assert keyed_frames(rig, "fore", "rotation_quaternion") == []
     np.testing.assert_allclose(values(rig, "fore", "rotation_euler"), (0.2, -0.4, 0.6),
                                atol=1e-6)
+
+
+# -- constrained bones posed through their controls -------------------------------------
+
+#: A leg (deforming bones) and its two controls: the foot's IK control, shaped like the
+#: foot, and a pole in front of the knee. The rig faces -Y.
+LEG_ROWS = [
+    ("hips", (0.0, 0.0, 1.0), (0.0, 0.0, 1.2), None, False, 0.0),
+    ("thigh.L", (0.1, 0.0, 1.0), (0.1, -0.03, 0.55), "hips", False, 0.0),
+    ("shin.L", (0.1, -0.03, 0.55), (0.1, 0.0, 0.1), "thigh.L", True, 0.0),
+    ("foot.L", (0.1, 0.0, 0.1), (0.1, -0.15, 0.02), "shin.L", True, 0.0),
+    ("foot_ik.L", (0.1, 0.0, 0.1), (0.1, -0.15, 0.02), None, False, 0.0),
+    ("knee_pole.L", (0.1, -0.6, 0.55), (0.1, -0.7, 0.55), None, False, 0.0)]
+#: A step: the thigh forward, the knee bent, the foot pointed (local x turns, degrees).
+STEP = {"thigh.L": -40.0, "shin.L": 65.0, "foot.L": -25.0}
+
+
+@pytest.fixture
+def ik_leg(bpy_blank):
+    """The leg with an IK chain (shin, thigh) aimed at ``foot_ik.L`` with its pole, and
+    the foot copying the control's rotation; the pole angle that keeps the rest pose."""
+    from .conftest import build_armature
+
+    rig = build_armature(LEG_ROWS)
+    for name in ("foot_ik.L", "knee_pole.L"):
+        rig.data.bones[name].use_deform = False
+    ik = rig.pose.bones["shin.L"].constraints.new("IK")
+    ik.target, ik.subtarget, ik.chain_count = rig, "foot_ik.L", 2
+    ik.pole_target, ik.pole_subtarget = rig, "knee_pole.L"
+    copy = rig.pose.bones["foot.L"].constraints.new("COPY_ROTATION")
+    copy.target, copy.subtarget = rig, "foot_ik.L"
+    rest = {n: np.array(rig.pose.bones[n].matrix) for n in ("thigh.L", "shin.L")}
+    for angle in (-90.0, 90.0, 0.0, 180.0):
+        ik.pole_angle = np.radians(angle)
+        bpy.context.view_layer.update()
+        if all(np.allclose(np.array(rig.pose.bones[n].matrix), m, atol=1e-4)
+               for n, m in rest.items()):
+            return rig
+    raise AssertionError("no pole angle keeps the rest pose")
+
+
+def _step(data) -> Pose:
+    rotations = np.array(data.pose.rotations)
+    for name, deg in STEP.items():
+        rotations[data.skeleton.index(name)] = np.array(
+            Quaternion((1.0, 0.0, 0.0), np.radians(deg)).to_matrix())
+    return Pose(rotations, np.array(data.pose.translations))
+
+
+def test_an_ik_leg_is_posed_through_its_target_pole_and_foot_control(ik_leg):
+    data = read_armature(ik_leg)
+    pose = _step(data)
+    bpy.context.scene.frame_set(3)
+    written = apply_pose(ik_leg, data, pose)
+    assert written == ["foot_ik.L", "knee_pole.L"]
+    bpy.context.view_layer.update()
+    state = data.skeleton.forward(pose)
+    for name in ("thigh.L", "shin.L", "foot.L"):
+        i = data.skeleton.index(name)
+        got = np.array(ik_leg.matrix_world @ ik_leg.pose.bones[name].matrix)
+        np.testing.assert_allclose(got[:3, 3], state.heads[i], atol=2e-3, err_msg=name)
+        np.testing.assert_allclose(got[:3, :3], state.frames[i], atol=2e-3, err_msg=name)
+    # Keys on the controls only, at the current frame; the leg's own channels untouched.
+    assert keyed_frames(ik_leg, "foot_ik.L", "location") == [3.0]
+    assert keyed_frames(ik_leg, "foot_ik.L", "rotation_quaternion") == [3.0]
+    assert keyed_frames(ik_leg, "knee_pole.L", "location") == [3.0]
+    for name in STEP:
+        assert keyed_frames(ik_leg, name, "rotation_quaternion") == []
+        assert values(ik_leg, name, "rotation_quaternion") == (1.0, 0.0, 0.0, 0.0)
+
+
+def _controls(rig) -> dict:
+    return {n: (values(rig, n, "location"), values(rig, n, "rotation_quaternion"))
+            for n in ("foot_ik.L", "knee_pole.L")}
+
+
+def test_an_ik_chain_not_wholly_allowed_to_change_is_refused(ik_leg):
+    """Moving the target moves the whole chain: with the shin left out of the bones the
+    write may change, the leg is refused as before."""
+    data = read_armature(ik_leg)
+    before = _controls(ik_leg)
+    with pytest.raises(InputError, match=r"'thigh.L' \(the IK constraint 'IK' on "
+                                         r"'shin.L'\) is posed by constraints"):
+        apply_pose(ik_leg, data, _step(data), bones=["thigh.L", "foot.L"])
+    assert _controls(ik_leg) == before
+    assert ik_leg.animation_data is None or ik_leg.animation_data.action is None
+
+
+def test_controls_that_do_not_give_the_pose_back_are_put_back(ik_leg):
+    """The knee locked for IK (``lock_ik_x/y/z``): the moved target cannot bend it,
+    Blender's evaluation says so, and everything written, a free bone too, is put
+    back."""
+    shin = ik_leg.pose.bones["shin.L"]
+    shin.lock_ik_x = shin.lock_ik_y = shin.lock_ik_z = True
+    data = read_armature(ik_leg)
+    before = _controls(ik_leg)
+    pose = _step(data)
+    rotations = np.array(pose.rotations)
+    rotations[0] = np.array(Quaternion((0.0, 0.0, 1.0), 0.3).to_matrix())  # the hips
+    with pytest.raises(InputError, match=r"could not be posed through the IK target "
+                                         r"'foot_ik.L'.*Nothing was written"):
+        apply_pose(ik_leg, data, Pose(rotations, pose.translations))
+    assert _controls(ik_leg) == before
+    assert values(ik_leg, "hips", "rotation_quaternion") == (1.0, 0.0, 0.0, 0.0)
+    assert ik_leg.animation_data is None or ik_leg.animation_data.action is None
+
+
+def test_the_twist_of_an_ik_chain_is_the_rigs(ik_leg):
+    """A knee bent backwards is reached joint for joint, Blender's IK turning the thigh
+    and shin half round about their axes (the chain bends its knee towards its pole):
+    the joints are checked, not the twist."""
+    data = read_armature(ik_leg)
+    rotations = np.array(data.pose.rotations)
+    for name, deg in {"thigh.L": 40.0, "shin.L": -65.0}.items():
+        rotations[data.skeleton.index(name)] = np.array(
+            Quaternion((1.0, 0.0, 0.0), np.radians(deg)).to_matrix())
+    pose = Pose(rotations, data.pose.translations)
+    apply_pose(ik_leg, data, pose, insert_keys=False)
+    bpy.context.view_layer.update()
+    state = data.skeleton.forward(pose)
+    for name in ("thigh.L", "shin.L"):
+        i = data.skeleton.index(name)
+        got = np.array(ik_leg.matrix_world @ ik_leg.pose.bones[name].matrix)
+        np.testing.assert_allclose(got[:3, 3], state.heads[i], atol=2e-3)
+        np.testing.assert_allclose(got[:3, 1], state.frames[i][:, 1], atol=2e-3)
+        assert got[:3, 0] @ state.frames[i][:, 0] < -0.99  # turned half round

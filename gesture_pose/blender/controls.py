@@ -1,0 +1,202 @@
+"""Posing constrained bones through the controls their constraints follow (ours).
+
+A rig whose foot copies the rotation of an IK control, or whose shin ends an IK chain
+aimed at that control, ignores keys on the foot and the leg: Blender evaluates the
+constraints after the keyed pose. :func:`.constraints.plan_redirects` finds such bones
+and their controls; :func:`pose_controls` moves the controls so that Blender's own
+evaluation gives the solved pose back (the control's world rotation for a copied
+rotation, the IK target at the solved chain's end, the pole turned with the chain), and
+then checks it does, bone by bone.
+
+All matrices here are in the armature's pose space (Blender's ``pose_bone.matrix``: the
+armature object's own axes and units); the solved pose is turned into it through the
+object's world matrix.
+"""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+from mathutils import Matrix
+
+from ..core.exceptions import InputError
+from ..core.skeleton import Pose
+from .constraints import Redirects
+from .read_armature import ArmatureData
+
+#: Largest distance of a bone's head from its solved place, fraction of the rig's size.
+HEAD_TOLERANCE = 0.005
+#: Largest angle between a bone's evaluated and solved rotation, degrees.
+ANGLE_TOLERANCE = 1.0
+
+
+class _Solved:
+    """The solved pose's bones in pose space: rotations (Blender's bone frames) and heads."""
+
+    def __init__(self, arm_obj: bpy.types.Object, data: ArmatureData, pose: Pose) -> None:
+        state = data.skeleton.forward(pose)
+        world = np.asarray(data.matrix_world, float)
+        rot_o = world[:3, :3] / data.object_scale
+        frames = state.frames
+        if data.frame_change is not None:  # joint-skeleton frames back to the bones'
+            frames = frames @ np.swapaxes(data.frame_change, 1, 2)
+        self.rotations = np.einsum("ji,njk->nik", rot_o, frames)
+        inverse = np.linalg.inv(world)
+        self.heads = state.heads @ inverse[:3, :3].T + inverse[:3, 3]
+        self.index = {n: i for i, n in enumerate(data.skeleton.names)}
+        self.lengths = {b.name: b.length for b in arm_obj.data.bones}
+
+    def rotation(self, name: str) -> np.ndarray:
+        return self.rotations[self.index[name]]
+
+    def head(self, name: str) -> np.ndarray:
+        return self.heads[self.index[name]]
+
+    def tail(self, name: str) -> np.ndarray:
+        return self.head(name) + self.rotation(name)[:, 1] * self.lengths[name]
+
+
+def _evaluated(arm_obj: bpy.types.Object, name: str) -> np.ndarray:
+    """The bone's evaluated pose matrix, ``(4, 4)`` (constraints included)."""
+    return np.array(arm_obj.pose.bones[name].matrix, dtype=float)
+
+
+def _frame(points: np.ndarray) -> np.ndarray | None:
+    """An orthonormal frame of a chain: its root-to-end axis and the bend's direction.
+
+    Args:
+        points: The chain's joints, root first, end last, ``(k, 3)``.
+
+    Returns:
+        Columns (axis, bend, axis x bend), ``(3, 3)``; None when the chain is straight.
+    """
+    axis = points[-1] - points[0]
+    size = float(np.linalg.norm(axis))
+    if size < 1e-9:
+        return None
+    axis = axis / size
+    off = points - points[0]
+    off = off - np.outer(off @ axis, axis)
+    k = int(np.argmax(np.linalg.norm(off, axis=1)))
+    if np.linalg.norm(off[k]) < 1e-3 * size:
+        return None
+    bend = off[k] / np.linalg.norm(off[k])
+    return np.column_stack([axis, bend, np.cross(axis, bend)])
+
+
+def _turn(old: np.ndarray, new: np.ndarray) -> np.ndarray:
+    """The rotation taking the chain ``old`` to ``new`` (both ``(k, 3)``, root first)."""
+    f_old, f_new = _frame(old), _frame(new)
+    if f_old is not None and f_new is not None:
+        return f_new @ f_old.T
+    a = (old[-1] - old[0]) / max(float(np.linalg.norm(old[-1] - old[0])), 1e-12)
+    b = (new[-1] - new[0]) / max(float(np.linalg.norm(new[-1] - new[0])), 1e-12)
+    v, c = np.cross(a, b), float(a @ b)
+    if c < -1.0 + 1e-9:  # reversed: a half turn about any axis across it
+        u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        return 2.0 * np.outer(u, u) - np.eye(3)
+    vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + vx + vx @ vx / (1.0 + c)
+
+
+def _targets(arm_obj: bpy.types.Object, solved: _Solved, plan: Redirects
+             ) -> dict[str, tuple[np.ndarray | None, np.ndarray | None]]:
+    """``{control: (pose-space rotation or None, head or None)}`` to give each control."""
+    out: dict[str, tuple[np.ndarray | None, np.ndarray | None]] = {}
+    for owner, (source, whole) in plan.copies.items():
+        out[source] = (solved.rotation(owner), solved.head(owner) if whole else None)
+    for ch in plan.chains:
+        end = solved.tail(ch.bone) if ch.use_tail else solved.head(ch.bone)
+        rotation = out.get(ch.target, (None, None))[0]
+        if rotation is None:
+            rotation = _evaluated(arm_obj, ch.target)[:3, :3]
+            rotation = rotation / np.linalg.norm(rotation, axis=0)
+        length = arm_obj.data.bones[ch.target].length
+        out[ch.target] = (rotation, end - ch.head_tail * length * rotation[:, 1])
+        if ch.pole:
+            bones = list(reversed(ch.chain))
+            old_end = _evaluated(arm_obj, ch.bone)
+            old_end = (old_end[:3, 3] + old_end[:3, 1] * arm_obj.data.bones[ch.bone].length
+                       if ch.use_tail else old_end[:3, 3])
+            old = np.array([_evaluated(arm_obj, n)[:3, 3] for n in bones] + [old_end])
+            new = np.array([solved.head(n) for n in bones] + [end])
+            turn = _turn(old, new)
+            pole = _evaluated(arm_obj, ch.pole)
+            out[ch.pole] = (turn @ pole[:3, :3], new[0] + turn @ (pole[:3, 3] - old[0]))
+    return out
+
+
+def pose_controls(arm_obj: bpy.types.Object, data: ArmatureData, pose: Pose,
+                  plan: Redirects) -> dict[str, list[str]]:
+    """Move the controls of ``plan`` so that Blender evaluates the solved pose.
+
+    The free bones must already be written (the controls may hang from them). Each
+    control is given its pose matrix, parents first, the view layer updated after each.
+    Then every bone the plan poses is compared with the solved pose.
+
+    Args:
+        arm_obj: The armature object.
+        data: The armature as read.
+        pose: The solved pose in ``data.skeleton``'s frames.
+        plan: What to move (:func:`.constraints.plan_redirects`).
+
+    Returns:
+        ``{control: channels written}`` (``rotation_*`` and ``location``).
+
+    Raises:
+        InputError: Blender's evaluation does not give the solved pose back (a control
+            moved but the bone ends elsewhere); the caller restores what was written.
+    """
+    from .write_pose import rotation_channel
+
+    bpy.context.view_layer.update()
+    solved = _Solved(arm_obj, data, pose)
+    written: dict[str, list[str]] = {}
+    targets = _targets(arm_obj, solved, plan)
+    order = {n: i for i, n in enumerate(b.name for b in arm_obj.data.bones)}
+    for name in sorted(targets, key=lambda n: (len(arm_obj.data.bones[n].parent_recursive),
+                                               order[n])):
+        rotation, head = targets[name]
+        pb = arm_obj.pose.bones[name]
+        matrix = _evaluated(arm_obj, name)
+        if rotation is not None:
+            matrix[:3, :3] = rotation * np.linalg.norm(matrix[:3, :3], axis=0)
+        if head is not None:
+            matrix[:3, 3] = head
+        pb.matrix = Matrix(matrix.tolist())
+        bpy.context.view_layer.update()
+        written[name] = ([rotation_channel(pb.rotation_mode)] if rotation is not None
+                         else []) + (["location"] if head is not None else [])
+    _check(arm_obj, data, solved, plan)
+    return written
+
+
+def _check(arm_obj: bpy.types.Object, data: ArmatureData, solved: _Solved,
+           plan: Redirects) -> None:
+    """Raise when a bone the plan poses is evaluated away from its solved pose.
+
+    A bone copying a control's rotation must match the solved rotation; a bone of an IK
+    chain its solved head and direction: the twist of a chain's bones about their own
+    axes is the rig's (the pole's plane and the knee's bend), not the drawing's.
+    """
+    rest = np.array([[*b.head_local, *b.tail_local] for b in arm_obj.data.bones])
+    size = float(np.ptp(rest.reshape(-1, 3), axis=0).max())
+    how = {n: f"the IK target '{ch.target}'" for ch in plan.chains for n in ch.chain}
+    how.update({o: f"its control '{s}'" for o, (s, _) in plan.copies.items()})
+    for name in sorted(plan.handled, key=solved.index.get):
+        got = _evaluated(arm_obj, name)
+        rot = got[:3, :3] / np.linalg.norm(got[:3, :3], axis=0)
+        want = solved.rotation(name)
+        if name in plan.copies:
+            cos = (np.trace(rot.T @ want) - 1.0) / 2.0
+        else:
+            cos = float(rot[:, 1] @ want[:, 1])
+        angle = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+        gap = float(np.linalg.norm(got[:3, 3] - solved.head(name)))
+        if angle > ANGLE_TOLERANCE or gap > HEAD_TOLERANCE * size:
+            raise InputError(
+                f"'{name}' could not be posed through {how[name]}: Blender evaluates it "
+                f"{angle:.1f} degrees and {100 * gap / size:.1f}% of the rig's size from "
+                "the solved pose. Nothing was written; mute its constraint (or set its "
+                "influence to 0) to pose the bone itself.")
