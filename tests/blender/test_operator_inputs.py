@@ -738,3 +738,51 @@ def test_drawover_refuses_a_bone_a_constraint_poses(registered, returned) -> Non
     _constrain(arm, "forearm.L", "DAMPED_TRACK", target=aim)
     _refused(returned, "drawover", r"'forearm.L' \(its constraint 'Damped Track'\) is "
              r"posed.*'Pinned' bone collection", arm, armature=arm.name, sketch=sketch.name)
+
+
+def test_pose_poses_legs_rigged_with_ik_through_their_controls(registered, returned,
+                                                               monkeypatch) -> None:
+    """The whole Pose (its 2D fit replaced by the exact embedding of a known step) on
+    the humanoid with both legs rigged with IK gives the legs it gives with the rig's
+    constraints muted, keys the foot controls and poles, and no key on the legs' own
+    bones."""
+    arm, _ = _front_humanoid()
+    for side in ("L", "R"):
+        builders.add_ik_leg(arm, side)
+    constraints = [c for pb in arm.pose.bones for c in pb.constraints]
+    assert len(constraints) == 4
+    for c in constraints:
+        c.mute = True
+    builders.pose_humanoid(arm, "step")
+    bpy.context.view_layer.update()
+    truth = read_armature(arm)
+    builders.reset_pose(arm)
+    bpy.context.view_layer.update()
+    solving = solving_skeleton(truth.skeleton)
+
+    def oracle(arm_obj, sketch_obj, camera, frame=None, params=None, facing="auto",
+               body_up="up"):
+        skeleton = read_armature(arm_obj).skeleton
+        return project_embedding(skeleton, solving, truth.pose, camera, 0.06, "auto"), 1
+
+    monkeypatch.setattr(pose_drawing, "fit_scene_drawing", oracle)
+    sketch = builders.add_grease_pencil("Sketch", [np.array([[0.0, -1.0, 0.0],
+                                                             [0.1, -1.0, 0.5]])])
+    legs = ["thigh.L", "shin.L", "foot.L", "thigh.R", "shin.R", "foot.R"]
+    assert _run("pose_drawing", arm, armature=arm.name, sketch=sketch.name,
+                insert_keys=False) == {"FINISHED"}
+    plain = builders.joint_positions(arm)
+    builders.reset_pose(arm)
+    for c in constraints:
+        c.mute = False
+    keys = _keys(arm)
+    assert _run("pose_drawing", arm, armature=arm.name, sketch=sketch.name) == {"FINISHED"}
+    bpy.context.view_layer.update()
+    rigged = builders.joint_positions(arm)
+    for name in legs:
+        for k in (0, 1):
+            np.testing.assert_allclose(rigged[name][k], plain[name][k], atol=2e-3,
+                                       err_msg=name)
+    changed = _keyed_bones(arm, keys, FRAME)
+    assert {"foot_ik.L", "foot_ik.R", "knee_pole.L", "knee_pole.R"} <= changed
+    assert not changed & set(legs)
