@@ -343,23 +343,18 @@ def test_pose_all_strokes_with_one_far_stroke_keeps_nothing(registered, returned
 # -- Pose: keys after a successful run ---------------------------------------------------
 
 
-def test_pose_keys_only_changed_solving_bones_at_the_current_frame(registered, returned,
-                                                                   monkeypatch) -> None:
-    """The 2D fit is replaced by the exact embedding of a known pose (the 3D step and the
-    writing are the operator's); test_pose_drawing checks the keys' frame on a fresh rig,
-    here keys set before on other frames and on a bone outside the solve must survive."""
-    arm, _ = _front_humanoid()
-    builders.pose_humanoid(arm, "raise_left_arm")
-    bpy.context.view_layer.update()
+def _exact_fit(arm, monkeypatch):
+    """Make Pose fit the exact embedding of the armature's current pose (its 2D fit
+    replaced; the 3D step and the writing are the operator's), then rest the armature.
+
+    Returns:
+        ``(sketch object to pass (its one stroke is not read), the armature as read in
+        that pose, its solving skeleton)``.
+    """
     truth = read_armature(arm)
     builders.reset_pose(arm)
     bpy.context.view_layer.update()
     solving = solving_skeleton(truth.skeleton)
-    outside = [n for i, n in enumerate(truth.names) if i not in set(solving.bones.tolist())]
-    assert outside
-    builders.apply_rotations(arm, {outside[0]: ((1.0, 0.0, 0.0), 20.0)})
-    bpy.context.view_layer.update()
-    _preset_keys(arm, "upper_arm.L", outside[0])
 
     def oracle(arm_obj, sketch_obj, camera, frame=None, params=None, facing="auto",
                body_up="up"):
@@ -369,6 +364,23 @@ def test_pose_keys_only_changed_solving_bones_at_the_current_frame(registered, r
     monkeypatch.setattr(pose_drawing, "fit_scene_drawing", oracle)
     sketch = builders.add_grease_pencil("Sketch", [np.array([[0.0, -1.0, 0.0],
                                                              [0.1, -1.0, 0.5]])])
+    return sketch, truth, solving
+
+
+def test_pose_keys_only_changed_solving_bones_at_the_current_frame(registered, returned,
+                                                                   monkeypatch) -> None:
+    """The 2D fit is replaced by the exact embedding of a known pose (the 3D step and the
+    writing are the operator's); test_pose_drawing checks the keys' frame on a fresh rig,
+    here keys set before on other frames and on a bone outside the solve must survive."""
+    arm, _ = _front_humanoid()
+    builders.pose_humanoid(arm, "raise_left_arm")
+    bpy.context.view_layer.update()
+    sketch, truth, solving = _exact_fit(arm, monkeypatch)
+    outside = [n for i, n in enumerate(truth.names) if i not in set(solving.bones.tolist())]
+    assert outside
+    builders.apply_rotations(arm, {outside[0]: ((1.0, 0.0, 0.0), 20.0)})
+    bpy.context.view_layer.update()
+    _preset_keys(arm, "upper_arm.L", outside[0])
     before, keys = _snapshot(arm), _keys(arm)
     assert _run("pose_drawing", arm, armature=arm.name, sketch=sketch.name) == {"FINISHED"}
     changed = _keyed_bones(arm, keys, FRAME)
@@ -667,19 +679,7 @@ def test_pose_refuses_an_ik_chain_and_poses_the_rest_once_it_is_pinned(
     builders.pose_humanoid(arm, "raise_left_arm")
     builders.apply_rotations(arm, {"thigh.R": ((1.0, 0.0, 0.0), 30.0)})
     bpy.context.view_layer.update()
-    truth = read_armature(arm)
-    builders.reset_pose(arm)
-    bpy.context.view_layer.update()
-    solving = solving_skeleton(truth.skeleton)
-
-    def oracle(arm_obj, sketch_obj, camera, frame=None, params=None, facing="auto",
-               body_up="up"):
-        skeleton = read_armature(arm_obj).skeleton
-        return project_embedding(skeleton, solving, truth.pose, camera, 0.06, "auto"), 1
-
-    monkeypatch.setattr(pose_drawing, "fit_scene_drawing", oracle)
-    sketch = builders.add_grease_pencil("Sketch", [np.array([[0.0, -1.0, 0.0],
-                                                             [0.1, -1.0, 0.5]])])
+    sketch, _, _ = _exact_fit(arm, monkeypatch)
     _constrain(arm, "forearm.L", "IK", target=_target(), chain_count=2)
     _refused(returned, "pose_drawing", r"'upper_arm.L' \(the IK constraint 'IK' on "
              r"'forearm.L'\), 'forearm.L' \(the IK constraint 'IK' on 'forearm.L'\) are "
@@ -755,19 +755,7 @@ def test_pose_poses_legs_rigged_with_ik_through_their_controls(registered, retur
         c.mute = True
     builders.pose_humanoid(arm, "step")
     bpy.context.view_layer.update()
-    truth = read_armature(arm)
-    builders.reset_pose(arm)
-    bpy.context.view_layer.update()
-    solving = solving_skeleton(truth.skeleton)
-
-    def oracle(arm_obj, sketch_obj, camera, frame=None, params=None, facing="auto",
-               body_up="up"):
-        skeleton = read_armature(arm_obj).skeleton
-        return project_embedding(skeleton, solving, truth.pose, camera, 0.06, "auto"), 1
-
-    monkeypatch.setattr(pose_drawing, "fit_scene_drawing", oracle)
-    sketch = builders.add_grease_pencil("Sketch", [np.array([[0.0, -1.0, 0.0],
-                                                             [0.1, -1.0, 0.5]])])
+    sketch, _, _ = _exact_fit(arm, monkeypatch)
     legs = ["thigh.L", "shin.L", "foot.L", "thigh.R", "shin.R", "foot.R"]
     assert _run("pose_drawing", arm, armature=arm.name, sketch=sketch.name,
                 insert_keys=False) == {"FINISHED"}
