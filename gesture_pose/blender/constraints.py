@@ -98,9 +98,12 @@ def _chain(pose_bone: bpy.types.PoseBone, c: bpy.types.Constraint) -> list[str]:
         return []
     bone = pose_bone if c.type == "SPLINE_IK" or c.use_tail else pose_bone.parent
     count = int(c.chain_count)
-    out = []
-    while bone is not None and (count == 0 or len(out) < count):
-        out.append(bone.name)
+    out, seen = [], 0
+    while bone is not None and (count == 0 or seen < count):
+        # A bone locked for IK on every axis is not turned by the chain: its keys show.
+        if c.type != "IK" or not (bone.lock_ik_x and bone.lock_ik_y and bone.lock_ik_z):
+            out.append(bone.name)
+        seen += 1
         bone = bone.parent
     return out
 
@@ -115,6 +118,7 @@ def _driven(arm_obj: bpy.types.Object) -> dict[tuple[str, str], str]:
                 or not path.startswith('pose.bones["') or '"].' not in path):
             continue
         bone, prop = path[len('pose.bones["'):].split('"].', 1)
+        bone = bone.replace('\\"', '"').replace("\\\\", "\\")  # RNA path escapes
         out[(bone, prop)] = f"a driver on its {prop}"
     return out
 
@@ -251,28 +255,37 @@ def _ik_chain(arm_obj, pb, c) -> IkChain | None:
                    float(getattr(c, "head_tail", 0.0)), pole)
 
 
-def plan_redirects(arm_obj: bpy.types.Object, rotations: Sequence[str],
-                   allowed: Sequence[str]) -> Redirects:
-    """The constrained bones among ``rotations`` that controls can pose instead (ours).
+def _locked(pb: bpy.types.PoseBone, rotation: bool, location: bool) -> bool:
+    """Whether a lock stops writing the rotation or location a control needs."""
+    return bool((rotation and (any(pb.lock_rotation) or pb.lock_rotation_w))
+                or (location and any(pb.lock_location)))
+
+
+def plan_redirects(arm_obj: bpy.types.Object, allowed: Sequence[str],
+                   rotating: Sequence[str] = (), pinned: Sequence[str] = ()) -> Redirects:
+    """The constrained bones among ``allowed`` that controls can pose (ours).
 
     A bone is posed through a control when exactly one thing takes its rotation over
     and that is a Copy Rotation or Copy Transforms constraint copying another bone's
     world rotation whole (Replace, world spaces, full influence: a foot following its IK
-    control), or an IK constraint at full influence (without rotation matching) whose
-    target, and pole if any, are bones of the armature: the target is moved to the
-    solved chain's end and the pole turned with the chain, so that Blender's IK gives
-    the solved chain back. Every bone of such a chain must be ``allowed`` to change, and
-    the controls must be controls (bones that deform nothing: a deforming bone such as
-    the head is part of the character, which the write must not move unasked), free
-    (nothing takes them over) and not written themselves.
+    control), or an IK constraint at full influence (without rotation matching, with
+    Blender's standard solver, not iTaSC) whose target, and pole if any, are bones of
+    the armature: the target is moved to the solved chain's end and the pole turned
+    with the chain, so that Blender's IK gives the solved chain back. Every bone of such
+    a chain must be ``allowed`` to change. The controls must be controls: bones that
+    deform nothing (a deforming bone such as the head is part of the character, which
+    the write must not move unasked), whose deforming descendants may all change, which
+    nothing takes over, which are not pinned, not ``rotating`` themselves and not locked
+    on a channel they need (a copied rotation, an IK target's or pole's location).
 
     Not on a generated Rigify rig (``rig_id`` on its armature): its deform bones copy
     its tweak controls, and keys on those would fight its FK and IK controls.
 
     Args:
         arm_obj: The armature object.
-        rotations: Bones whose solved rotation is about to be written.
         allowed: Bones the write may change (a chain moves as a whole).
+        rotating: Bones whose own solved rotation is written (not moved as controls).
+        pinned: Bones the solvers leave alone (never moved as controls either).
 
     Returns:
         The redirects; bones not covered keep their refusal (:func:`check_writable`).
@@ -281,27 +294,37 @@ def plan_redirects(arm_obj: bpy.types.Object, rotations: Sequence[str],
         # A generated Rigify rig: its deform bones copy tweak controls, which animators
         # use as offsets over its FK and IK controls; keys there would fight those.
         return Redirects({}, ())
-    rotation, _ = _takers(arm_obj, rotations)
-    allowed_set, written = set(allowed), set(rotations)
+    rotation, _ = _takers(arm_obj, allowed)
+    allowed_set = set(allowed)
     copies: dict[str, tuple[str, bool]] = {}
     chains: dict[str, IkChain] = {}
-    for name in rotations:
+    itasc = arm_obj.pose.ik_solver == "ITASC"
+    for name in allowed:
         if len(rotation[name]) != 1 or rotation[name][0][2] is None:
             continue
         _, owner, c = rotation[name][0]
         if c.type == "IK":
-            chain = _ik_chain(arm_obj, owner, c)
+            chain = None if itasc else _ik_chain(arm_obj, owner, c)
             if chain is not None and set(chain.chain) <= allowed_set:
                 chains[chain.bone] = chain
         else:
             source = _copy_source(arm_obj, c)
             if source is not None:
                 copies[name] = source
-    controls = ({s for s, _ in copies.values()} | {c.target for c in chains.values()}
-                | {c.pole for c in chains.values() if c.pole})
-    rot_c, loc_c = _takers(arm_obj, sorted(controls))
-    busy = {n for n in controls if rot_c[n] or loc_c[n] or n in written
-            or arm_obj.data.bones[n].use_deform}  # a control moves no skin itself
+    needs: dict[str, tuple[bool, bool]] = {}  # control: (rotation, location) written
+    for source, whole in copies.values():
+        needs[source] = (True, whole)
+    for ch in chains.values():
+        needs[ch.target] = (needs.get(ch.target, (False, False))[0], True)
+        if ch.pole:
+            needs[ch.pole] = (False, True)
+    rot_c, loc_c = _takers(arm_obj, sorted(needs))
+    bones, pbs = arm_obj.data.bones, arm_obj.pose.bones
+    busy = {n for n, (rot, loc) in needs.items()
+            if rot_c[n] or loc_c[n] or n in set(rotating) or n in set(pinned)
+            or bones[n].use_deform or _locked(pbs[n], rot, loc)
+            or any(d.use_deform and d.name not in allowed_set
+                   for d in bones[n].children_recursive)}
     copies = {o: s for o, s in copies.items() if s[0] not in busy}
     in_chains, _ = _takers(arm_obj, [n for c in chains.values() for n in c.chain])
     kept = tuple(c for c in chains.values() if c.target not in busy and c.pole not in busy

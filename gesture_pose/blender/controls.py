@@ -122,81 +122,124 @@ def _targets(arm_obj: bpy.types.Object, solved: _Solved, plan: Redirects
             old = np.array([_evaluated(arm_obj, n)[:3, 3] for n in bones] + [old_end])
             new = np.array([solved.head(n) for n in bones] + [end])
             turn = _turn(old, new)
-            pole = _evaluated(arm_obj, ch.pole)
-            out[ch.pole] = (turn @ pole[:3, :3], new[0] + turn @ (pole[:3, 3] - old[0]))
+            pole = _evaluated(arm_obj, ch.pole)[:3, 3]
+            out[ch.pole] = (None, new[0] + turn @ (pole - old[0]))  # its head (IK aims at it)
     return out
 
 
+def _set_pose_matrix(arm_obj: bpy.types.Object, name: str, matrix: np.ndarray,
+                     rotation: bool, location: bool) -> list[str]:
+    """Give a bone a pose-space matrix through its own channels, continuously.
+
+    The local transform is Blender's (``convert_space`` from the pose to the bone's
+    local space, its parent as evaluated); the rotation goes through
+    :func:`.write_pose.set_rotation` (the current quaternion's side, compatible Euler
+    angles), not through ``pose_bone.matrix``, which keeps neither.
+
+    Returns:
+        The channels written.
+    """
+    from .write_pose import set_rotation
+
+    pb = arm_obj.pose.bones[name]
+    local = np.array(arm_obj.convert_space(pose_bone=pb, matrix=Matrix(matrix.tolist()),
+                                           from_space="POSE", to_space="LOCAL"))
+    channels = []
+    if rotation:
+        channels.append(set_rotation(pb, local[:3, :3] / np.linalg.norm(local[:3, :3],
+                                                                         axis=0)))
+    if location:
+        pb.location = local[:3, 3]
+        channels.append("location")
+    bpy.context.view_layer.update()
+    return channels
+
+
 def pose_controls(arm_obj: bpy.types.Object, data: ArmatureData, pose: Pose,
-                  plan: Redirects) -> dict[str, list[str]]:
+                  plan: Redirects, allowed: list[str]) -> dict[str, list[str]]:
     """Move the controls of ``plan`` so that Blender evaluates the solved pose.
 
-    The free bones must already be written (the controls may hang from them). Each
-    control is given its pose matrix, parents first, the view layer updated after each.
-    Then every bone the plan poses is compared with the solved pose.
+    Every allowed bone's own channels must already hold the solved pose (a chain's
+    bones too: Blender's IK starts from them, and the next read sees the pose shown).
+    Each control is then given its pose matrix, parents first; allowed bones below a
+    chain, which the rig's twist of the chain turned, are given their solved pose
+    again; and every allowed bone is compared with the solved pose (:func:`_check`).
 
     Args:
         arm_obj: The armature object.
         data: The armature as read.
         pose: The solved pose in ``data.skeleton``'s frames.
         plan: What to move (:func:`.constraints.plan_redirects`).
+        allowed: The bones the write may change.
 
     Returns:
-        ``{control: channels written}`` (``rotation_*`` and ``location``).
+        ``{bone: channels written}``: the controls, and the allowed bones given their
+        solved pose again.
 
     Raises:
         InputError: Blender's evaluation does not give the solved pose back (a control
-            moved but the bone ends elsewhere); the caller restores what was written.
+            moved but a bone ends elsewhere); the caller restores what was written.
     """
-    from .write_pose import rotation_channel
-
     bpy.context.view_layer.update()
     solved = _Solved(arm_obj, data, pose)
     written: dict[str, list[str]] = {}
     targets = _targets(arm_obj, solved, plan)
-    order = {n: i for i, n in enumerate(b.name for b in arm_obj.data.bones)}
+    order = {b.name: i for i, b in enumerate(arm_obj.data.bones)}
     for name in sorted(targets, key=lambda n: (len(arm_obj.data.bones[n].parent_recursive),
                                                order[n])):
         rotation, head = targets[name]
-        pb = arm_obj.pose.bones[name]
         matrix = _evaluated(arm_obj, name)
         if rotation is not None:
             matrix[:3, :3] = rotation * np.linalg.norm(matrix[:3, :3], axis=0)
         if head is not None:
             matrix[:3, 3] = head
-        pb.matrix = Matrix(matrix.tolist())
-        bpy.context.view_layer.update()
-        written[name] = ([rotation_channel(pb.rotation_mode)] if rotation is not None
-                         else []) + (["location"] if head is not None else [])
-    _check(arm_obj, data, solved, plan)
+        written[name] = _set_pose_matrix(arm_obj, name, matrix, rotation is not None,
+                                         head is not None)
+    handled, controls = plan.handled, plan.controls
+    for name in sorted(set(allowed) - handled - controls, key=solved.index.get):
+        got = _evaluated(arm_obj, name)
+        if _angle(got, solved.rotation(name)) > 1e-3:  # turned with a chain's twist
+            matrix = got.copy()
+            matrix[:3, :3] = solved.rotation(name) * np.linalg.norm(got[:3, :3], axis=0)
+            written[name] = _set_pose_matrix(arm_obj, name, matrix, True, False)
+    _check(arm_obj, solved, plan, allowed)
     return written
 
 
-def _check(arm_obj: bpy.types.Object, data: ArmatureData, solved: _Solved,
-           plan: Redirects) -> None:
-    """Raise when a bone the plan poses is evaluated away from its solved pose.
+def _angle(matrix: np.ndarray, rotation: np.ndarray, axis_only: bool = False) -> float:
+    """Degrees between a pose matrix's rotation (or its y axis) and a rotation's."""
+    rot = matrix[:3, :3] / np.linalg.norm(matrix[:3, :3], axis=0)
+    cos = (float(rot[:, 1] @ rotation[:, 1]) if axis_only
+           else (np.trace(rot.T @ rotation) - 1.0) / 2.0)
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
-    A bone copying a control's rotation must match the solved rotation; a bone of an IK
-    chain its solved head and direction: the twist of a chain's bones about their own
-    axes is the rig's (the pole's plane and the knee's bend), not the drawing's.
+
+def _check(arm_obj: bpy.types.Object, solved: _Solved, plan: Redirects,
+           allowed: list[str]) -> None:
+    """Raise when an allowed bone is evaluated away from its solved pose.
+
+    A bone of an IK chain must have its solved head and direction: the twist of a
+    chain's bones about their own axes is the rig's (the pole's plane and the knee's
+    bend), not the drawing's. Every other allowed bone (a foot copying its control, a
+    toe below it, the bones the controls hang from) its head and whole rotation; the
+    controls themselves are moved on purpose.
     """
     rest = np.array([[*b.head_local, *b.tail_local] for b in arm_obj.data.bones])
     size = float(np.ptp(rest.reshape(-1, 3), axis=0).max())
-    how = {n: f"the IK target '{ch.target}'" for ch in plan.chains for n in ch.chain}
-    how.update({o: f"its control '{s}'" for o, (s, _) in plan.copies.items()})
-    for name in sorted(plan.handled, key=solved.index.get):
+    chained = {n: ch.target for ch in plan.chains for n in ch.chain}
+    for name in sorted(set(allowed) - plan.controls, key=solved.index.get):
         got = _evaluated(arm_obj, name)
-        rot = got[:3, :3] / np.linalg.norm(got[:3, :3], axis=0)
-        want = solved.rotation(name)
-        if name in plan.copies:
-            cos = (np.trace(rot.T @ want) - 1.0) / 2.0
-        else:
-            cos = float(rot[:, 1] @ want[:, 1])
-        angle = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+        angle = _angle(got, solved.rotation(name), axis_only=name in chained)
         gap = float(np.linalg.norm(got[:3, 3] - solved.head(name)))
         if angle > ANGLE_TOLERANCE or gap > HEAD_TOLERANCE * size:
+            if name in chained:
+                how = f"could not be posed through the IK target '{chained[name]}'"
+            elif name in plan.copies:
+                how = f"could not be posed through its control '{plan.copies[name][0]}'"
+            else:
+                how = "did not follow the controls moved for the bones above it"
             raise InputError(
-                f"'{name}' could not be posed through {how[name]}: Blender evaluates it "
-                f"{angle:.1f} degrees and {100 * gap / size:.1f}% of the rig's size from "
-                "the solved pose. Nothing was written; mute its constraint (or set its "
-                "influence to 0) to pose the bone itself.")
+                f"'{name}' {how}: Blender evaluates it {angle:.1f} degrees and "
+                f"{100 * gap / size:.1f}% of the rig's size from the solved pose. Nothing "
+                "was written; mute the constraints of the leg or arm (or set their "
+                "influence to 0) to pose its bones themselves.")

@@ -124,7 +124,9 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
     Bones whose rotation a constraint takes over are posed through the control it
     follows when there is one (:func:`.constraints.plan_redirects`: a copied rotation,
     an IK chain's target and pole; :func:`.controls.pose_controls` checks Blender's
-    evaluation gives the solved pose back); keys go on the controls, not on them.
+    evaluation gives the solved pose back); the controls are keyed too, and so are the
+    bones' own channels, which then hold the pose shown (the next read starts from it,
+    and Blender's IK starts from it).
 
     Raises:
         InputError: The pose does not match the armature or has NaN values, or a channel
@@ -148,23 +150,28 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
         raise InputError(f"Bone '{gone[0]}' no longer exists in '{arm_obj.name}': read the "
                          "armature again.")
     rotating = [names[i] for i in selected if diff[i] > tol]
-    plan = plan_redirects(arm_obj, rotating, [names[i] for i in selected])
+    allowed = [names[i] for i in selected]
+    plan = plan_redirects(arm_obj, allowed, rotating,
+                          [names[i] for i in np.flatnonzero(data.pinned)])
     handled = plan.handled
     check_writable(arm_obj, [n for n in rotating if n not in handled],
                    [names[i] for i in sorted(with_location) if moved[i]], pin_hint)
     saved = _channel_values(arm_obj, [names[i] for i in order] + sorted(plan.controls))
     channels: dict[str, list[str]] = {}
-    for i in order:
+    for i in order:  # a chain's and a copying bone's own channels too (see pose_controls)
         name = names[i]
         pb = arm_obj.pose.bones[name]
-        if i in selected and diff[i] > tol and name not in handled:
+        if i in selected and diff[i] > tol:
             channels.setdefault(name, []).append(set_rotation(pb, new_pose.rotations[i]))
         if i in with_location and moved[i]:
             pb.location = new_t[i] / data.object_scale
             channels.setdefault(name, []).append("location")
     if plan.copies or plan.chains:
         try:
-            channels.update(pose_controls(arm_obj, data, solved, plan))
+            for name, written in pose_controls(arm_obj, data, solved, plan,
+                                               allowed).items():
+                have = channels.setdefault(name, [])
+                have.extend(c for c in written if c not in have)
         except InputError:
             _restore(arm_obj, saved)
             raise

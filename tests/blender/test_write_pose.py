@@ -225,7 +225,7 @@ def test_an_ik_leg_is_posed_through_its_target_pole_and_foot_control(ik_leg):
     pose = _step(data)
     bpy.context.scene.frame_set(3)
     written = apply_pose(ik_leg, data, pose)
-    assert written == ["foot_ik.L", "knee_pole.L"]
+    assert sorted(written) == ["foot.L", "foot_ik.L", "knee_pole.L", "shin.L", "thigh.L"]
     bpy.context.view_layer.update()
     state = data.skeleton.forward(pose)
     for name in ("thigh.L", "shin.L", "foot.L"):
@@ -233,13 +233,17 @@ def test_an_ik_leg_is_posed_through_its_target_pole_and_foot_control(ik_leg):
         got = np.array(ik_leg.matrix_world @ ik_leg.pose.bones[name].matrix)
         np.testing.assert_allclose(got[:3, 3], state.heads[i], atol=2e-3, err_msg=name)
         np.testing.assert_allclose(got[:3, :3], state.frames[i], atol=2e-3, err_msg=name)
-    # Keys on the controls only, at the current frame; the leg's own channels untouched.
+    # The controls are keyed at the current frame (the pole's location only), and so
+    # are the leg's own channels, which hold the pose shown: a new read starts from it.
     assert keyed_frames(ik_leg, "foot_ik.L", "location") == [3.0]
     assert keyed_frames(ik_leg, "foot_ik.L", "rotation_quaternion") == [3.0]
     assert keyed_frames(ik_leg, "knee_pole.L", "location") == [3.0]
+    assert keyed_frames(ik_leg, "knee_pole.L", "rotation_quaternion") == []
+    again = read_armature(ik_leg)
     for name in STEP:
-        assert keyed_frames(ik_leg, name, "rotation_quaternion") == []
-        assert values(ik_leg, name, "rotation_quaternion") == (1.0, 0.0, 0.0, 0.0)
+        assert keyed_frames(ik_leg, name, "rotation_quaternion") == [3.0]
+        i = data.skeleton.index(name)
+        np.testing.assert_allclose(again.pose.rotations[i], pose.rotations[i], atol=1e-6)
 
 
 def _controls(rig) -> dict:
@@ -278,10 +282,9 @@ def test_controls_that_do_not_give_the_pose_back_are_put_back(ik_leg):
     assert ik_leg.animation_data is None or ik_leg.animation_data.action is None
 
 
-def test_the_twist_of_an_ik_chain_is_the_rigs(ik_leg):
-    """A knee bent backwards is reached joint for joint, Blender's IK turning the thigh
-    and shin half round about their axes (the chain bends its knee towards its pole):
-    the joints are checked, not the twist."""
+def test_a_knee_bent_backwards_is_reached_from_the_chains_own_channels(ik_leg):
+    """Blender's IK starts from the chain's own channels, which hold the solved pose:
+    a knee bent backwards (against its pole) comes out as solved, twist included."""
     data = read_armature(ik_leg)
     rotations = np.array(data.pose.rotations)
     for name, deg in {"thigh.L": 40.0, "shin.L": -65.0}.items():
@@ -291,9 +294,56 @@ def test_the_twist_of_an_ik_chain_is_the_rigs(ik_leg):
     apply_pose(ik_leg, data, pose, insert_keys=False)
     bpy.context.view_layer.update()
     state = data.skeleton.forward(pose)
-    for name in ("thigh.L", "shin.L"):
+    for name in ("thigh.L", "shin.L", "foot.L"):
         i = data.skeleton.index(name)
         got = np.array(ik_leg.matrix_world @ ik_leg.pose.bones[name].matrix)
-        np.testing.assert_allclose(got[:3, 3], state.heads[i], atol=2e-3)
-        np.testing.assert_allclose(got[:3, 1], state.frames[i][:, 1], atol=2e-3)
-        assert got[:3, 0] @ state.frames[i][:, 0] < -0.99  # turned half round
+        np.testing.assert_allclose(got[:3, 3], state.heads[i], atol=2e-3, err_msg=name)
+        np.testing.assert_allclose(got[:3, :3], state.frames[i], atol=2e-3, err_msg=name)
+
+
+def test_a_free_foot_below_an_ik_chain_keeps_its_solved_rotation(ik_leg):
+    """Without the foot's Copy Rotation the foot hangs freely from the shin: given its
+    solved pose after the chain is posed through its target, also when its own local
+    rotation does not change."""
+    ik_leg.pose.bones["foot.L"].constraints.remove(
+        ik_leg.pose.bones["foot.L"].constraints["Copy Rotation"])
+    data = read_armature(ik_leg)
+    rotations = np.array(data.pose.rotations)
+    for name, deg in {"hips": 20.0, "thigh.L": -40.0, "shin.L": 65.0}.items():
+        rotations[data.skeleton.index(name)] = np.array(
+            Quaternion((1.0, 0.0, 0.0), np.radians(deg)).to_matrix())
+    pose = Pose(rotations, data.pose.translations)
+    apply_pose(ik_leg, data, pose, bones=["hips", "thigh.L", "shin.L", "foot.L"])
+    bpy.context.view_layer.update()
+    state = data.skeleton.forward(pose)
+    i = data.skeleton.index("foot.L")
+    got = np.array(ik_leg.matrix_world @ ik_leg.pose.bones["foot.L"].matrix)
+    np.testing.assert_allclose(got[:3, :3], state.frames[i], atol=2e-3)
+    np.testing.assert_allclose(got[:3, 3], state.heads[i], atol=2e-3)
+
+
+def test_a_pinned_control_is_not_moved(ik_leg):
+    """A control in the Pinned collection stays where it is: the chain it poses is
+    refused like any constrained bone."""
+    pinned = ik_leg.data.collections.new("Pinned")
+    pinned.assign(ik_leg.data.bones["foot_ik.L"])
+    data = read_armature(ik_leg)
+    before = _controls(ik_leg)
+    with pytest.raises(InputError, match=r"'thigh.L' \(the IK constraint 'IK' on "
+                                         r"'shin.L'\).*'foot.L' \(its constraint "
+                                         r"'Copy Rotation'\)"):
+        apply_pose(ik_leg, data, _step(data))
+    assert _controls(ik_leg) == before
+
+
+def test_a_control_keeps_its_quaternion_side_and_euler_turns(ik_leg):
+    """Controls are written through their channels continuously: the foot control keyed
+    at frame 1 with its quaternion on the negative side stays on that side at frame 3
+    (no flip through zero between the keys)."""
+    ctl = ik_leg.pose.bones["foot_ik.L"]
+    ctl.rotation_quaternion = (-1.0, 0.0, 0.0, 0.0)
+    ctl.keyframe_insert("rotation_quaternion", frame=1)
+    bpy.context.scene.frame_set(3)
+    data = read_armature(ik_leg)
+    apply_pose(ik_leg, data, _step(data))
+    assert np.dot(values(ik_leg, "foot_ik.L", "rotation_quaternion"), (-1, 0, 0, 0)) > 0.5
