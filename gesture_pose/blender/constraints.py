@@ -257,12 +257,24 @@ def _ik_chain(arm_obj, pb, c) -> IkChain | None:
 
 def _locked(pb: bpy.types.PoseBone, rotation: bool, location: bool) -> bool:
     """Whether a lock stops writing the rotation or location a control needs."""
-    return bool((rotation and (any(pb.lock_rotation) or pb.lock_rotation_w))
+    w = (pb.lock_rotations_4d and pb.rotation_mode in ("QUATERNION", "AXIS_ANGLE")
+         and pb.lock_rotation_w)
+    return bool((rotation and (any(pb.lock_rotation) or w))
                 or (location and any(pb.lock_location)))
 
 
+def _touched(arm_obj: bpy.types.Object, names: Sequence[str], changed: set[str]) -> bool:
+    """Whether any of the bones, or a bone above them, is written."""
+    for name in names:
+        bone = arm_obj.data.bones[name]
+        if name in changed or any(p.name in changed for p in bone.parent_recursive):
+            return True
+    return False
+
+
 def plan_redirects(arm_obj: bpy.types.Object, allowed: Sequence[str],
-                   rotating: Sequence[str] = (), pinned: Sequence[str] = ()) -> Redirects:
+                   rotating: Sequence[str] = (), pinned: Sequence[str] = (),
+                   changed: Sequence[str] = ()) -> Redirects:
     """The constrained bones among ``allowed`` that controls can pose (ours).
 
     A bone is posed through a control when exactly one thing takes its rotation over
@@ -286,6 +298,10 @@ def plan_redirects(arm_obj: bpy.types.Object, allowed: Sequence[str],
         allowed: Bones the write may change (a chain moves as a whole).
         rotating: Bones whose own solved rotation is written (not moved as controls).
         pinned: Bones the solvers leave alone (never moved as controls either).
+        changed: Bones whose channels are written: a chain or a copying bone is posed
+            through its control only when it, or a bone above it, is among them (an IK
+            leg the write does not touch keeps the pose its controls give it, not the
+            pose its stale channels would).
 
     Returns:
         The redirects; bones not covered keep their refusal (:func:`check_writable`).
@@ -295,7 +311,7 @@ def plan_redirects(arm_obj: bpy.types.Object, allowed: Sequence[str],
         # use as offsets over its FK and IK controls; keys there would fight those.
         return Redirects({}, ())
     rotation, _ = _takers(arm_obj, allowed)
-    allowed_set = set(allowed)
+    allowed_set, changed_set = set(allowed), set(changed)
     copies: dict[str, tuple[str, bool]] = {}
     chains: dict[str, IkChain] = {}
     itasc = arm_obj.pose.ik_solver == "ITASC"
@@ -305,11 +321,12 @@ def plan_redirects(arm_obj: bpy.types.Object, allowed: Sequence[str],
         _, owner, c = rotation[name][0]
         if c.type == "IK":
             chain = None if itasc else _ik_chain(arm_obj, owner, c)
-            if chain is not None and set(chain.chain) <= allowed_set:
+            if (chain is not None and set(chain.chain) <= allowed_set
+                    and _touched(arm_obj, chain.chain, changed_set)):
                 chains[chain.bone] = chain
         else:
             source = _copy_source(arm_obj, c)
-            if source is not None:
+            if source is not None and _touched(arm_obj, [name], changed_set):
                 copies[name] = source
     needs: dict[str, tuple[bool, bool]] = {}  # control: (rotation, location) written
     for source, whole in copies.values():

@@ -28,6 +28,9 @@ from .read_armature import ArmatureData
 HEAD_TOLERANCE = 0.005
 #: Largest angle between a bone's evaluated and solved rotation, degrees.
 ANGLE_TOLERANCE = 1.0
+#: A bone below a moved control or chain turned by more than this (degrees) from its
+#: solved rotation is given it again (float32 pose matrices carry about 0.01 degree).
+FOLLOW_TOLERANCE = 0.05
 
 
 class _Solved:
@@ -137,20 +140,25 @@ def _set_pose_matrix(arm_obj: bpy.types.Object, name: str, matrix: np.ndarray,
     angles), not through ``pose_bone.matrix``, which keeps neither.
 
     Returns:
-        The channels written.
+        The channels whose values changed.
     """
-    from .write_pose import set_rotation
+    from .write_pose import rotation_channel, set_rotation
 
     pb = arm_obj.pose.bones[name]
     local = np.array(arm_obj.convert_space(pose_bone=pb, matrix=Matrix(matrix.tolist()),
                                            from_space="POSE", to_space="LOCAL"))
     channels = []
     if rotation:
-        channels.append(set_rotation(pb, local[:3, :3] / np.linalg.norm(local[:3, :3],
-                                                                         axis=0)))
+        channel = rotation_channel(pb.rotation_mode)
+        before = np.array(getattr(pb, channel))
+        set_rotation(pb, local[:3, :3] / np.linalg.norm(local[:3, :3], axis=0))
+        if np.abs(np.array(getattr(pb, channel)) - before).max() > 1e-6:
+            channels.append(channel)
     if location:
+        before = np.array(pb.location)
         pb.location = local[:3, 3]
-        channels.append("location")
+        if np.abs(np.array(pb.location) - before).max() > 1e-6:
+            channels.append("location")
     bpy.context.view_layer.update()
     return channels
 
@@ -195,39 +203,63 @@ def pose_controls(arm_obj: bpy.types.Object, data: ArmatureData, pose: Pose,
             matrix[:3, 3] = head
         written[name] = _set_pose_matrix(arm_obj, name, matrix, rotation is not None,
                                          head is not None)
-    handled, controls = plan.handled, plan.controls
-    for name in sorted(set(allowed) - handled - controls, key=solved.index.get):
+    for name in followers(arm_obj, plan, allowed, solved.index):
         got = _evaluated(arm_obj, name)
-        if _angle(got, solved.rotation(name)) > 1e-3:  # turned with a chain's twist
+        if _angle(got, solved.rotation(name)) > FOLLOW_TOLERANCE:  # a chain's twist
             matrix = got.copy()
             matrix[:3, :3] = solved.rotation(name) * np.linalg.norm(got[:3, :3], axis=0)
-            written[name] = _set_pose_matrix(arm_obj, name, matrix, True, False)
+            changed = _set_pose_matrix(arm_obj, name, matrix, True, False)
+            if changed:
+                written[name] = changed
     _check(arm_obj, solved, plan, allowed)
     return written
 
 
+def followers(arm_obj: bpy.types.Object, plan: Redirects, allowed: list[str],
+              index: dict[str, int]) -> list[str]:
+    """The allowed bones that hang below the bones and controls the plan moves.
+
+    Only bones without constraints of their own (a constrained bone follows its
+    constraint, which the write does not model), parents first.
+    """
+    moved = plan.handled | plan.controls
+    out = []
+    for name in set(allowed) - moved:
+        bone = arm_obj.data.bones[name]
+        if not arm_obj.pose.bones[name].constraints and any(
+                p.name in moved for p in bone.parent_recursive):
+            out.append(name)
+    return sorted(out, key=index.get)
+
+
 def _angle(matrix: np.ndarray, rotation: np.ndarray, axis_only: bool = False) -> float:
-    """Degrees between a pose matrix's rotation (or its y axis) and a rotation's."""
+    """Degrees between a pose matrix's rotation (or its y axis) and a rotation's.
+
+    From the chord, ``2 asin(|a - b| / 2)`` (``|A - B|_F / sqrt(8)`` for whole
+    rotations), which float32 pose matrices leave accurate near zero, unlike the
+    arccos of a trace.
+    """
     rot = matrix[:3, :3] / np.linalg.norm(matrix[:3, :3], axis=0)
-    cos = (float(rot[:, 1] @ rotation[:, 1]) if axis_only
-           else (np.trace(rot.T @ rotation) - 1.0) / 2.0)
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    chord = (float(np.linalg.norm(rot[:, 1] - rotation[:, 1])) / 2.0 if axis_only
+             else float(np.linalg.norm(rot - rotation)) / np.sqrt(8.0))
+    return float(np.degrees(2.0 * np.arcsin(min(chord, 1.0))))
 
 
 def _check(arm_obj: bpy.types.Object, solved: _Solved, plan: Redirects,
            allowed: list[str]) -> None:
-    """Raise when an allowed bone is evaluated away from its solved pose.
+    """Raise when a bone the plan poses, or one below, is evaluated off its solved pose.
 
     A bone of an IK chain must have its solved head and direction: the twist of a
     chain's bones about their own axes is the rig's (the pole's plane and the knee's
-    bend), not the drawing's. Every other allowed bone (a foot copying its control, a
-    toe below it, the bones the controls hang from) its head and whole rotation; the
-    controls themselves are moved on purpose.
+    bend), not the drawing's. A bone copying its control, and the allowed bones without
+    constraints below those and the controls (:func:`followers`: a toe), their head and
+    whole rotation. Other bones are the free rig's, written as before.
     """
     rest = np.array([[*b.head_local, *b.tail_local] for b in arm_obj.data.bones])
     size = float(np.ptp(rest.reshape(-1, 3), axis=0).max())
     chained = {n: ch.target for ch in plan.chains for n in ch.chain}
-    for name in sorted(set(allowed) - plan.controls, key=solved.index.get):
+    for name in sorted(plan.handled, key=solved.index.get) + followers(
+            arm_obj, plan, allowed, solved.index):
         got = _evaluated(arm_obj, name)
         angle = _angle(got, solved.rotation(name), axis_only=name in chained)
         gap = float(np.linalg.norm(got[:3, 3] - solved.head(name)))

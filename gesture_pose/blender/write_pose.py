@@ -151,11 +151,12 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
                          "armature again.")
     rotating = [names[i] for i in selected if diff[i] > tol]
     allowed = [names[i] for i in selected]
+    relocated = [names[i] for i in sorted(with_location) if moved[i]]
     plan = plan_redirects(arm_obj, allowed, rotating,
-                          [names[i] for i in np.flatnonzero(data.pinned)])
+                          [names[i] for i in np.flatnonzero(data.pinned)],
+                          rotating + relocated)
     handled = plan.handled
-    check_writable(arm_obj, [n for n in rotating if n not in handled],
-                   [names[i] for i in sorted(with_location) if moved[i]], pin_hint)
+    check_writable(arm_obj, [n for n in rotating if n not in handled], relocated, pin_hint)
     saved = _channel_values(arm_obj, [names[i] for i in order] + sorted(plan.controls))
     channels: dict[str, list[str]] = {}
     for i in order:  # a chain's and a copying bone's own channels too (see pose_controls)
@@ -172,7 +173,7 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
                                                allowed).items():
                 have = channels.setdefault(name, [])
                 have.extend(c for c in written if c not in have)
-        except InputError:
+        except Exception:  # a failed check, or anything else half-way: put it back
             _restore(arm_obj, saved)
             raise
     if insert_keys:

@@ -347,3 +347,76 @@ def test_a_control_keeps_its_quaternion_side_and_euler_turns(ik_leg):
     data = read_armature(ik_leg)
     apply_pose(ik_leg, data, _step(data))
     assert np.dot(values(ik_leg, "foot_ik.L", "rotation_quaternion"), (-1, 0, 0, 0)) > 0.5
+
+
+@pytest.fixture
+def ik_humanoid(bpy_blank):
+    """The sample humanoid with its right leg rigged with IK, the foot control raised
+    25 cm so that the IK bends the knee (the leg's channels stay at rest)."""
+    from sample_scenes import builders
+
+    arm, _ = builders.build_humanoid()
+    builders.add_ik_leg(arm, "R")
+    arm.pose.bones["foot_ik.R"].location = (0.0, 0.25, 0.0)  # along the bone: up
+    bpy.context.view_layer.update()
+    return arm
+
+
+def _shown(arm, names) -> dict[str, np.ndarray]:
+    return {n: np.array(arm.pose.bones[n].matrix) for n in names}
+
+
+def test_an_ik_leg_the_write_does_not_touch_keeps_the_pose_its_controls_give(
+        ik_humanoid):
+    """Only the left upper arm turns: the right leg, bent by its raised IK control, is
+    not reset to its channels (at rest), and no control is moved or keyed; a Damped
+    Track on the head and a Limit Rotation holding the spine elsewhere in the rig do
+    not stop the write."""
+    arm = ik_humanoid
+    aim = bpy.data.objects.new("Aim", None)
+    bpy.context.scene.collection.objects.link(aim)
+    aim.location = (1.0, -1.0, 2.5)
+    arm.pose.bones["head"].constraints.new("DAMPED_TRACK").target = aim
+    limit = arm.pose.bones["spine"].constraints.new("LIMIT_ROTATION")
+    limit.use_limit_x, limit.owner_space, limit.max_x = True, "LOCAL", 0.0
+    arm.pose.bones["spine"].rotation_quaternion = Quaternion((1.0, 0.0, 0.0), 0.3)
+    bpy.context.view_layer.update()
+    legs = ["thigh.R", "shin.R", "foot.R", "foot_ik.R", "knee_pole.R", "head", "spine"]
+    before = _shown(arm, legs)
+    data = read_armature(arm)
+    rotations = np.array(data.pose.rotations)
+    i = data.skeleton.index("upper_arm.L")
+    rotations[i] = np.array(Quaternion((0.0, 1.0, 0.0), 0.8).to_matrix()) @ rotations[i]
+    assert apply_pose(arm, data, Pose(rotations, data.pose.translations),
+                      frame=5) == ["upper_arm.L"]
+    bpy.context.view_layer.update()
+    for name, m in before.items():
+        np.testing.assert_allclose(np.array(arm.pose.bones[name].matrix), m, atol=1e-5,
+                                   err_msg=name)
+    for name in ("foot_ik.R", "knee_pole.R", "thigh.R"):
+        assert keyed_frames(arm, name, "location") == []
+        assert keyed_frames(arm, name, "rotation_quaternion") == []
+
+
+def test_a_leg_below_a_turned_hip_is_posed_through_its_controls(ik_humanoid):
+    """The pelvis turns: the IK leg below it (its channels at rest) is posed as its
+    channels say, through its target and pole, and the toe below the foot follows;
+    the Damped Track head elsewhere is not checked."""
+    arm = ik_humanoid
+    arm.pose.bones["foot_ik.R"].location = (0.0, 0.0, 0.0)
+    bpy.context.view_layer.update()
+    data = read_armature(arm)
+    rotations = np.array(data.pose.rotations)
+    rotations[data.skeleton.index("pelvis")] = np.array(
+        Quaternion((0.0, 0.0, 1.0), 0.4).to_matrix())
+    pose = Pose(rotations, data.pose.translations)
+    written = apply_pose(arm, data, pose, frame=5)
+    assert {"pelvis", "foot_ik.R", "knee_pole.R"} <= set(written)
+    bpy.context.view_layer.update()
+    state = data.skeleton.forward(pose)
+    for name in ("thigh.R", "shin.R", "foot.R", "toe.R"):
+        k = data.skeleton.index(name)
+        got = np.array(arm.matrix_world @ arm.pose.bones[name].matrix)
+        np.testing.assert_allclose(got[:3, 3], state.heads[k], atol=2e-3, err_msg=name)
+        np.testing.assert_allclose(got[:3, 1], state.frames[k][:, 1], atol=2e-3,
+                                   err_msg=name)
