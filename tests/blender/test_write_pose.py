@@ -220,19 +220,24 @@ def _step(data) -> Pose:
     return Pose(rotations, np.array(data.pose.translations))
 
 
+def _assert_shown_as_solved(rig, data, pose, names) -> None:
+    """Blender's evaluation of ``names`` (constraints included) is the solved pose's."""
+    bpy.context.view_layer.update()
+    state = data.skeleton.forward(pose)
+    for name in names:
+        i = data.skeleton.index(name)
+        got = np.array(rig.matrix_world @ rig.pose.bones[name].matrix)
+        np.testing.assert_allclose(got[:3, 3], state.heads[i], atol=2e-3, err_msg=name)
+        np.testing.assert_allclose(got[:3, :3], state.frames[i], atol=2e-3, err_msg=name)
+
+
 def test_an_ik_leg_is_posed_through_its_target_pole_and_foot_control(ik_leg):
     data = read_armature(ik_leg)
     pose = _step(data)
     bpy.context.scene.frame_set(3)
     written = apply_pose(ik_leg, data, pose)
     assert sorted(written) == ["foot.L", "foot_ik.L", "knee_pole.L", "shin.L", "thigh.L"]
-    bpy.context.view_layer.update()
-    state = data.skeleton.forward(pose)
-    for name in ("thigh.L", "shin.L", "foot.L"):
-        i = data.skeleton.index(name)
-        got = np.array(ik_leg.matrix_world @ ik_leg.pose.bones[name].matrix)
-        np.testing.assert_allclose(got[:3, 3], state.heads[i], atol=2e-3, err_msg=name)
-        np.testing.assert_allclose(got[:3, :3], state.frames[i], atol=2e-3, err_msg=name)
+    _assert_shown_as_solved(ik_leg, data, pose, ("thigh.L", "shin.L", "foot.L"))
     # The controls are keyed at the current frame (the pole's location only), and so
     # are the leg's own channels, which hold the pose shown: a new read starts from it.
     assert keyed_frames(ik_leg, "foot_ik.L", "location") == [3.0]
@@ -292,13 +297,7 @@ def test_a_knee_bent_backwards_is_reached_from_the_chains_own_channels(ik_leg):
             Quaternion((1.0, 0.0, 0.0), np.radians(deg)).to_matrix())
     pose = Pose(rotations, data.pose.translations)
     apply_pose(ik_leg, data, pose, insert_keys=False)
-    bpy.context.view_layer.update()
-    state = data.skeleton.forward(pose)
-    for name in ("thigh.L", "shin.L", "foot.L"):
-        i = data.skeleton.index(name)
-        got = np.array(ik_leg.matrix_world @ ik_leg.pose.bones[name].matrix)
-        np.testing.assert_allclose(got[:3, 3], state.heads[i], atol=2e-3, err_msg=name)
-        np.testing.assert_allclose(got[:3, :3], state.frames[i], atol=2e-3, err_msg=name)
+    _assert_shown_as_solved(ik_leg, data, pose, ("thigh.L", "shin.L", "foot.L"))
 
 
 def test_a_free_foot_below_an_ik_chain_keeps_its_solved_rotation(ik_leg):
