@@ -171,8 +171,9 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
         try:
             for name, written in pose_controls(arm_obj, data, solved, plan,
                                                allowed).items():
-                have = channels.setdefault(name, [])
-                have.extend(c for c in written if c not in have)
+                if written:  # a control already in place is not written
+                    have = channels.setdefault(name, [])
+                    have.extend(c for c in written if c not in have)
         except Exception:  # a failed check, or anything else half-way: put it back
             _restore(arm_obj, saved)
             raise
