@@ -141,6 +141,45 @@ def test_locked_axes_and_pinned_bones_are_respected():
     assert np.abs(log_map(res.pose.rotations[2])).max() > 0.05
 
 
+def test_a_limb_with_a_pinned_bone_is_not_made_symmetric():
+    """A T figure whose left arm is drawn 7 degrees below level (within the symmetry
+    angle): free, both arms are averaged; with the right arm pinned, the left keeps the
+    drop it has with symmetry off and is not reported symmetric (the pin would be put
+    back after the averaging, leaving the left arm half-way)."""
+    from gesture_pose.core.skeleton import Skeleton
+    from tests.core.fixtures import frame_along
+
+    heads = np.array([[0, 0, 0], [0, 0, 1], [0.1, 0, 1], [0.6, 0, 1], [-0.1, 0, 1],
+                      [-0.6, 0, 1]], float)
+    tails = np.array([[0, 0, 1], [0, 0, 1.5], [0.6, 0, 1], [1.1, 0, 1], [-0.6, 0, 1],
+                      [-1.1, 0, 1]], float)
+    frames = np.stack([frame_along(t - h, 0.0) for h, t in zip(heads, tails, strict=True)])
+    sk = Skeleton(("root", "neck", "arm.L", "fore.L", "arm.R", "fore.R"),
+                  np.array([-1, 0, 0, 2, 0, 4]), heads, tails, frames, np.ones(6, bool),
+                  np.array([False, True, False, True, False, True]), np.ones(6, bool))
+    cam = front_camera(ortho=True)
+    f = sk.forward(Pose.identity(6)).frames[2]
+    rotations = np.tile(np.eye(3), (6, 1, 1))
+    rotations[2] = f.T @ exp_map(np.array([0.0, np.radians(7.0), 0.0])) @ f
+    emb = project_embedding(sk, solving_skeleton(sk), Pose(rotations, np.zeros((6, 3))), cam)
+    pinned = np.zeros(6, bool)
+    pinned[[4, 5]] = True
+
+    def drop(res) -> float:
+        d = np.diff(sk.forward(res.pose).heads[[2, 3]], axis=0)[0]
+        return float(np.degrees(np.arctan2(-d[2], abs(d[0]))))
+
+    free = solve_pose3d(sk, emb, cam)
+    assert free.symmetric == ("arm.L", "fore.L")
+    held = solve_pose3d(sk, emb, cam, pinned=pinned)
+    plain = solve_pose3d(sk, emb, cam, pinned=pinned,
+                         options=replace(DepthOptions(), symmetry_angle=0.0))
+    assert held.symmetric == ()
+    np.testing.assert_array_equal(held.pose.rotations[4], np.eye(3))
+    assert drop(held) == pytest.approx(drop(plain), abs=1e-6)
+    assert drop(held) > 1.5 * drop(free) > 0.0
+
+
 def test_solve_starts_from_bind_pose_not_previous_result():
     sk = tree_skeleton()
     cam = front_camera(ortho=True)

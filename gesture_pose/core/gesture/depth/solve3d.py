@@ -1130,6 +1130,13 @@ def _solve(skeleton: Skeleton, embedding: Embedding2D, camera: Camera, pose: Pos
     if opts.symmetry_angle > 0:
         t3 = time.perf_counter()
         pairs = symmetry.mirror_pairs(skeleton.names, jm.bones)
+        if len(pairs) and len(held_bones):
+            # A limb with a pinned bone is not made symmetric: the pin would be undone
+            # below, leaving its partner averaged with a pose it does not have.
+            held_set = set(held_bones.tolist())
+            free = [not any(held_set & set(skeleton.ancestors(int(b))) for b in pair)
+                    for pair in pairs]
+            pairs = pairs[np.asarray(free, bool)]
         if len(pairs):
             keeps_order = _keeps_enforced_orders(skeleton, jm, setup.frame, setup.order,
                                                  current, 1e-4 * mean_len)
