@@ -185,8 +185,8 @@ class IkChain:
         bone: The bone carrying the IK constraint.
         chain: The bones it poses, that bone first when ``use_tail``, upwards.
         use_tail: Whether the chain ends at the bone's tail (else at its head).
-        target: The target bone (in the same armature).
-        head_tail: Where along the target bone the chain's end goes (0 head, 1 tail).
+        target: The target bone (in the same armature; the chain's end goes to its
+            head).
         pole: The pole target bone, or ``""``.
     """
 
@@ -194,7 +194,6 @@ class IkChain:
     chain: tuple[str, ...]
     use_tail: bool
     target: str
-    head_tail: float
     pole: str
 
 
@@ -251,8 +250,7 @@ def _ik_chain(arm_obj, pb, c) -> IkChain | None:
     pole = _own_bone(arm_obj, c.pole_target, c.pole_subtarget)
     if not target or (c.pole_target is not None and not pole):
         return None
-    return IkChain(pb.name, tuple(_chain(pb, c)), bool(c.use_tail), target,
-                   float(getattr(c, "head_tail", 0.0)), pole)
+    return IkChain(pb.name, tuple(_chain(pb, c)), bool(c.use_tail), target, pole)
 
 
 def _locked(pb: bpy.types.PoseBone, rotation: bool, location: bool) -> bool:
@@ -287,8 +285,9 @@ def plan_redirects(arm_obj: bpy.types.Object, allowed: Sequence[str],
     a chain must be ``allowed`` to change. The controls must be controls: bones that
     deform nothing (a deforming bone such as the head is part of the character, which
     the write must not move unasked), whose deforming descendants may all change, which
-    nothing takes over, which are not pinned, not ``rotating`` themselves and not locked
-    on a channel they need (a copied rotation, an IK target's or pole's location).
+    nothing takes over, which are not pinned, not written themselves (``rotating``,
+    ``changed``) and not locked on a channel they need (a copied rotation, an IK
+    target's or pole's location).
 
     Not on a generated Rigify rig (``rig_id`` on its armature): its deform bones copy
     its tweak controls, and keys on those would fight its FK and IK controls.
@@ -338,7 +337,8 @@ def plan_redirects(arm_obj: bpy.types.Object, allowed: Sequence[str],
     rot_c, loc_c = _takers(arm_obj, sorted(needs))
     bones, pbs = arm_obj.data.bones, arm_obj.pose.bones
     busy = {n for n, (rot, loc) in needs.items()
-            if rot_c[n] or loc_c[n] or n in set(rotating) or n in set(pinned)
+            if rot_c[n] or loc_c[n] or n in set(rotating) or n in set(changed)
+            or n in set(pinned)
             or bones[n].use_deform or _locked(pbs[n], rot, loc)
             or any(d.use_deform and d.name not in allowed_set
                    for d in bones[n].children_recursive)}

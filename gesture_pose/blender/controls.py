@@ -115,8 +115,7 @@ def _targets(arm_obj: bpy.types.Object, solved: _Solved, plan: Redirects
         if rotation is None:
             rotation = _evaluated(arm_obj, ch.target)[:3, :3]
             rotation = rotation / np.linalg.norm(rotation, axis=0)
-        length = arm_obj.data.bones[ch.target].length
-        out[ch.target] = (rotation, end - ch.head_tail * length * rotation[:, 1])
+        out[ch.target] = (rotation, end)  # Blender's IK aims at the target's head
         if ch.pole:
             bones = list(reversed(ch.chain))
             old_end = _evaluated(arm_obj, ch.bone)
@@ -169,9 +168,11 @@ def pose_controls(arm_obj: bpy.types.Object, data: ArmatureData, pose: Pose,
 
     Every allowed bone's own channels must already hold the solved pose (a chain's
     bones too: Blender's IK starts from them, and the next read sees the pose shown).
-    Each control is then given its pose matrix, parents first; allowed bones below a
-    chain, which the rig's twist of the chain turned, are given their solved pose
-    again; and every allowed bone is compared with the solved pose (:func:`_check`).
+    Each control is then given its pose matrix, parents first; the bones that follow
+    (:func:`followers`: allowed, unconstrained, below a chain, a copying bone or a
+    control), which the rig's twist of a chain may have turned, are given their solved
+    pose again; and the bones the plan poses and those that follow are compared with the
+    solved pose (:func:`_check`).
 
     Args:
         arm_obj: The armature object.

@@ -1,9 +1,11 @@
 """Write core local rotations back to pose bones, in each bone's rotation mode, and key them.
 
 Only bones whose rotation changed are touched, and only their rotation channel is keyed
-(plus ``location`` for the bones asked for), at one frame. Values stay continuous with
-the current ones: quaternions keep the hemisphere of the current value, Euler angles use
-Blender's compatible-Euler conversion and axis-angle keeps the side of the current axis.
+(plus ``location`` for the bones asked for), at one frame; a limb rigged with IK is also
+posed through its controls, whose changed channels are keyed too (``controls.py``).
+Values stay continuous with the current ones: quaternions keep the hemisphere of the
+current value, Euler angles use Blender's compatible-Euler conversion and axis-angle
+keeps the side of the current axis.
 
 For a rig read as its joint skeleton (``ArmatureData.frame_change`` set: an imported rig
 with token bones) the pose is in the joint skeleton's frames and is conjugated back to the
@@ -112,14 +114,16 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
         frame: Frame of the keys (the scene's current frame when None).
         location_bones: Bones whose location is also written and keyed from
             ``new_pose.translations`` (world units, divided by the object scale).
-        tol: Bones whose rotation matrix entries change by at most ``tol`` are skipped.
+        tol: Bones whose rotation matrix entries change by at most ``tol`` are skipped
+            (unless a moved control turned them: :func:`.controls.pose_controls`).
         pin_hint: The refusal of constrained bones also suggests the ``Pinned`` bone
             collection (for the modes whose solvers leave pinned bones alone: Pose and
             the abstraction operators; Pose Stroke keeps them in place by turning them).
 
     Returns:
-        Names of the bones written, in skeleton order (with the controls moved in place
-        of constrained bones).
+        Names of the bones written, in skeleton order: those whose channels changed,
+        with the controls moved for constrained bones and the bones below them given
+        their solved pose again.
 
     Bones whose rotation a constraint takes over are posed through the control it
     follows when there is one (:func:`.constraints.plan_redirects`: a copied rotation,
@@ -159,24 +163,24 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
     check_writable(arm_obj, [n for n in rotating if n not in handled], relocated, pin_hint)
     saved = _channel_values(arm_obj, [names[i] for i in order] + sorted(plan.controls))
     channels: dict[str, list[str]] = {}
-    for i in order:  # a chain's and a copying bone's own channels too (see pose_controls)
-        name = names[i]
-        pb = arm_obj.pose.bones[name]
-        if i in selected and diff[i] > tol:
-            channels.setdefault(name, []).append(set_rotation(pb, new_pose.rotations[i]))
-        if i in with_location and moved[i]:
-            pb.location = new_t[i] / data.object_scale
-            channels.setdefault(name, []).append("location")
-    if plan.copies or plan.chains:
-        try:
+    try:
+        for i in order:  # a chain's and a copying bone's own channels too
+            name = names[i]
+            pb = arm_obj.pose.bones[name]
+            if i in selected and diff[i] > tol:
+                channels.setdefault(name, []).append(set_rotation(pb, new_pose.rotations[i]))
+            if i in with_location and moved[i]:
+                pb.location = new_t[i] / data.object_scale
+                channels.setdefault(name, []).append("location")
+        if plan.copies or plan.chains:
             for name, written in pose_controls(arm_obj, data, solved, plan,
                                                allowed).items():
                 if written:  # a control already in place is not written
                     have = channels.setdefault(name, [])
                     have.extend(c for c in written if c not in have)
-        except Exception:  # a failed check, or anything else half-way: put it back
-            _restore(arm_obj, saved)
-            raise
+    except Exception:  # a failed check, or anything else half-way: put it back
+        _restore(arm_obj, saved)
+        raise
     if insert_keys:
         for name, written in channels.items():
             for channel in written:

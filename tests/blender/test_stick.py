@@ -99,7 +99,7 @@ def test_standing_pose_and_suggestions(registered):
 def test_legs_rigged_with_ik_are_posed_through_their_controls(registered):
     """Both legs rigged with IK (foot controls and knee poles): Blender's evaluation of
     the rig gives the first suggestion's legs, near the drawn pose; the controls are
-    keyed, the legs' own bones are not."""
+    keyed with the legs' own channels."""
     from gesture_pose.core.skeleton import Pose
     from gesture_pose.core.stick.figure import character_figure
 

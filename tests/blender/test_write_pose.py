@@ -419,3 +419,17 @@ def test_a_leg_below_a_turned_hip_is_posed_through_its_controls(ik_humanoid):
         np.testing.assert_allclose(got[:3, 3], state.heads[k], atol=2e-3, err_msg=name)
         np.testing.assert_allclose(got[:3, 1], state.frames[k][:, 1], atol=2e-3,
                                    err_msg=name)
+
+
+def test_a_control_whose_location_is_written_is_not_moved_for_a_chain(ik_leg):
+    """The foot control's own location is asked for (as a stick figure's root would
+    be): it is not also moved to the chain's end, so the chain is refused."""
+    data = read_armature(ik_leg)
+    pose = _step(data)
+    moved = np.array(pose.translations)
+    moved[data.skeleton.index("foot_ik.L")] = (0.0, 0.0, 0.3)
+    before = _controls(ik_leg)
+    with pytest.raises(InputError, match=r"'thigh.L' \(the IK constraint 'IK' on "
+                                         r"'shin.L'\)"):
+        apply_pose(ik_leg, data, Pose(pose.rotations, moved), location_bones=["foot_ik.L"])
+    assert _controls(ik_leg) == before
