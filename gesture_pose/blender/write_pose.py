@@ -101,7 +101,8 @@ def set_rotation(pb: bpy.types.PoseBone, rotation: np.ndarray) -> str:
 def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
                bones: Sequence[int | str] | None = None, insert_keys: bool = True,
                frame: float | None = None, location_bones: Sequence[int | str] = (),
-               tol: float = 1e-6, pin_hint: bool = False) -> list[str]:
+               tol: float = 1e-6, pin_hint: bool = False, redirect: bool = True
+               ) -> list[str]:
     """Write the changed local rotations (and chosen locations) of a pose to the armature.
 
     Args:
@@ -119,6 +120,9 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
         pin_hint: The refusal of constrained bones also suggests the ``Pinned`` bone
             collection (for the modes whose solvers leave pinned bones alone: Pose and
             the abstraction operators; Pose Stroke keeps them in place by turning them).
+        redirect: Pose constrained bones through their controls (below). False for a
+            solve that already went through Blender's evaluation, constraints included
+            (the abstraction tools' black-box path): its result is what Blender shows.
 
     Returns:
         Names of the bones written, in skeleton order: those whose channels changed,
@@ -156,7 +160,7 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
     rotating = [names[i] for i in selected if diff[i] > tol]
     allowed = [names[i] for i in selected]
     relocated = [names[i] for i in sorted(with_location) if moved[i]]
-    plan = plan_redirects(arm_obj, allowed, rotating,
+    plan = plan_redirects(arm_obj, allowed if redirect else [], rotating,
                           [names[i] for i in np.flatnonzero(data.pinned)],
                           rotating + relocated)
     handled = plan.handled

@@ -433,3 +433,14 @@ def test_a_control_whose_location_is_written_is_not_moved_for_a_chain(ik_leg):
                                          r"'shin.L'\)"):
         apply_pose(ik_leg, data, Pose(pose.rotations, moved), location_bones=["foot_ik.L"])
     assert _controls(ik_leg) == before
+
+
+def test_without_redirects_a_constrained_leg_is_refused(ik_leg):
+    """``redirect=False`` (a black-box solve, which went through the constraints): the
+    IK leg is not posed through its controls, and its changed bones are refused."""
+    data = read_armature(ik_leg)
+    before = _controls(ik_leg)
+    with pytest.raises(InputError, match=r"'thigh.L' \(the IK constraint 'IK' on "
+                                         r"'shin.L'\)"):
+        apply_pose(ik_leg, data, _step(data), redirect=False)
+    assert _controls(ik_leg) == before

@@ -177,7 +177,8 @@ def write_result(op, arm_obj, job: RigJob, result: SolveResult, frame: int) -> l
     written = apply_pose(arm_obj, job.armature, result.pose.to_pose(),
                          bones=list(space.rotation_bones), insert_keys=op.insert_keys,
                          frame=frame, location_bones=list(space.translation_bones),
-                         tol=WRITE_TOLERANCE, pin_hint=True)
+                         tol=WRITE_TOLERANCE, pin_hint=True,
+                         redirect=not getattr(op, "black_box", False))
     for b in space.scale_bones:
         if abs(result.pose.scales[b] - job.start.scales[b]) > WRITE_TOLERANCE:
             pb = arm_obj.pose.bones[job.armature.names[b]]
