@@ -773,3 +773,35 @@ def test_pose_poses_legs_rigged_with_ik_through_their_controls(registered, retur
                                        err_msg=name)
     changed = _keyed_bones(arm, keys, FRAME)
     assert {"foot_ik.L", "foot_ik.R", "knee_pole.L", "knee_pole.R"} | set(legs) <= changed
+
+
+def test_flip_depth_flips_a_leg_rigged_with_ik(registered, returned) -> None:
+    """A leg rigged with IK, bent out of the view plane through its controls, is mirrored
+    about the view plane through the hip: the knee's depth changes sign and keeps its
+    place in the image, and the leg's own channels hold the pose shown."""
+    from mathutils import Quaternion
+
+    from gesture_pose.blender.write_pose import apply_pose
+    from gesture_pose.core.skeleton import Pose
+
+    arm, _ = _front_humanoid()
+    builders.add_ik_leg(arm, "R")
+    data = read_armature(arm)
+    rotations = np.array(data.pose.rotations)
+    for name, deg in {"thigh.R": -40.0, "shin.R": 65.0}.items():
+        rotations[data.skeleton.index(name)] = np.array(
+            Quaternion((1.0, 0.0, 0.0), np.radians(deg)).to_matrix())
+    apply_pose(arm, data, Pose(rotations, data.pose.translations), insert_keys=False)
+    before = builders.joint_positions(arm)
+    assert _run("flip_depth", arm, armature=arm.name, bone="thigh.R") == {"FINISHED"}
+    after = builders.joint_positions(arm)
+    hip, knee, new_knee = before["thigh.R"][0], before["shin.R"][0], after["shin.R"][0]
+    assert abs(knee[1] - hip[1]) > 0.1  # out of the view plane (the camera looks along +Y)
+    np.testing.assert_allclose(new_knee - hip, (knee - hip) * [1.0, -1.0, 1.0], atol=0.01)
+    read = read_armature(arm)
+    state = read.skeleton.forward(read.pose)
+    world = np.array(arm.matrix_world)
+    for name in ("thigh.R", "shin.R", "foot.R"):
+        shown = world @ np.array(arm.pose.bones[name].matrix)
+        np.testing.assert_allclose(state.heads[read.skeleton.index(name)], shown[:3, 3],
+                                   atol=2e-3, err_msg=name)
