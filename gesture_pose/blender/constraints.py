@@ -271,8 +271,7 @@ def _touched(arm_obj: bpy.types.Object, names: Sequence[str], changed: set[str])
 
 
 def plan_redirects(arm_obj: bpy.types.Object, allowed: Sequence[str],
-                   rotating: Sequence[str] = (), pinned: Sequence[str] = (),
-                   changed: Sequence[str] = ()) -> Redirects:
+                   changed: Sequence[str] = (), pinned: Sequence[str] = ()) -> Redirects:
     """The constrained bones among ``allowed`` that controls can pose (ours).
 
     A bone is posed through a control when exactly one thing takes its rotation over
@@ -285,9 +284,9 @@ def plan_redirects(arm_obj: bpy.types.Object, allowed: Sequence[str],
     a chain must be ``allowed`` to change. The controls must be controls: bones that
     deform nothing (a deforming bone such as the head is part of the character, which
     the write must not move unasked), whose deforming descendants may all change, which
-    nothing takes over, which are not pinned, not written themselves (``rotating``,
-    ``changed``) and not locked on a channel they need (a copied rotation, an IK
-    target's or pole's location).
+    nothing takes over, which are not pinned, not written themselves (``changed``) and
+    not locked on a channel they need (a copied rotation, an IK target's or pole's
+    location).
 
     Not on a generated Rigify rig (``rig_id`` on its armature): its deform bones copy
     its tweak controls, and keys on those would fight its FK and IK controls.
@@ -295,12 +294,11 @@ def plan_redirects(arm_obj: bpy.types.Object, allowed: Sequence[str],
     Args:
         arm_obj: The armature object.
         allowed: Bones the write may change (a chain moves as a whole).
-        rotating: Bones whose own solved rotation is written (not moved as controls).
+        changed: Bones whose channels are written (never moved as controls): a chain or
+            a copying bone is posed through its control only when it, or a bone above
+            it, is among them (an IK leg the write does not touch keeps the pose its
+            controls give it, not the pose its stale channels would).
         pinned: Bones the solvers leave alone (never moved as controls either).
-        changed: Bones whose channels are written: a chain or a copying bone is posed
-            through its control only when it, or a bone above it, is among them (an IK
-            leg the write does not touch keeps the pose its controls give it, not the
-            pose its stale channels would).
 
     Returns:
         The redirects; bones not covered keep their refusal (:func:`check_writable`).
@@ -309,8 +307,9 @@ def plan_redirects(arm_obj: bpy.types.Object, allowed: Sequence[str],
         # A generated Rigify rig: its deform bones copy tweak controls, which animators
         # use as offsets over its FK and IK controls; keys there would fight those.
         return Redirects({}, ())
-    rotation, _ = _takers(arm_obj, allowed)
-    allowed_set, changed_set = set(allowed), set(changed)
+    # What takes over each bone, read once (the allowed bones, the controls, the chains).
+    rotation, location = _takers(arm_obj, [pb.name for pb in arm_obj.pose.bones])
+    allowed_set, changed_set, pinned_set = set(allowed), set(changed), set(pinned)
     copies: dict[str, tuple[str, bool]] = {}
     chains: dict[str, IkChain] = {}
     itasc = arm_obj.pose.ik_solver == "ITASC"
@@ -334,18 +333,15 @@ def plan_redirects(arm_obj: bpy.types.Object, allowed: Sequence[str],
         needs[ch.target] = (needs.get(ch.target, (False, False))[0], True)
         if ch.pole:
             needs[ch.pole] = (False, True)
-    rot_c, loc_c = _takers(arm_obj, sorted(needs))
     bones, pbs = arm_obj.data.bones, arm_obj.pose.bones
     busy = {n for n, (rot, loc) in needs.items()
-            if rot_c[n] or loc_c[n] or n in set(rotating) or n in set(changed)
-            or n in set(pinned)
+            if rotation[n] or location[n] or n in changed_set or n in pinned_set
             or bones[n].use_deform or _locked(pbs[n], rot, loc)
             or any(d.use_deform and d.name not in allowed_set
                    for d in bones[n].children_recursive)}
     copies = {o: s for o, s in copies.items() if s[0] not in busy}
-    in_chains, _ = _takers(arm_obj, [n for c in chains.values() for n in c.chain])
     kept = tuple(c for c in chains.values() if c.target not in busy and c.pole not in busy
-                 and all(len(in_chains[n]) == 1 for n in c.chain))
+                 and all(len(rotation[n]) == 1 for n in c.chain))
     return Redirects(copies, kept)
 
 
@@ -370,8 +366,9 @@ def check_writable(arm_obj: bpy.types.Object, rotations: Sequence[str],
     found = overrides(arm_obj, names)
     at = {n: i for i, n in enumerate(names)}
     blocked = [(n, found.rotation[at[n]]) for n in rotations if found.rotation[at[n]]]
+    named = {n for n, _ in blocked}
     blocked += [(n, f"{found.location[at[n]]}, on its location") for n in locations
-                if found.location[at[n]] and n not in dict(blocked)]
+                if found.location[at[n]] and n not in named]
     if not blocked:
         return
     listed = ", ".join(f"'{n}' ({why})" for n, why in blocked[:_NAMED])

@@ -160,9 +160,8 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
     rotating = [names[i] for i in selected if diff[i] > tol]
     allowed = [names[i] for i in selected]
     relocated = [names[i] for i in sorted(with_location) if moved[i]]
-    plan = plan_redirects(arm_obj, allowed if redirect else [], rotating,
-                          [names[i] for i in np.flatnonzero(data.pinned)],
-                          rotating + relocated)
+    plan = plan_redirects(arm_obj, allowed if redirect else [], rotating + relocated,
+                          [names[i] for i in np.flatnonzero(data.pinned)])
     handled = plan.handled
     check_writable(arm_obj, [n for n in rotating if n not in handled], relocated, pin_hint)
     saved = _channel_values(arm_obj, [names[i] for i in order] + sorted(plan.controls))
