@@ -20,6 +20,7 @@ import numpy as np
 from mathutils import Matrix
 
 from ..core.exceptions import InputError
+from ..core.rotations import rotation_between
 from ..core.skeleton import Pose
 from .constraints import Redirects
 from .read_armature import ArmatureData
@@ -88,19 +89,15 @@ def _frame(points: np.ndarray) -> np.ndarray | None:
 
 
 def _turn(old: np.ndarray, new: np.ndarray) -> np.ndarray:
-    """The rotation taking the chain ``old`` to ``new`` (both ``(k, 3)``, root first)."""
+    """The rotation taking the chain ``old`` to ``new`` (both ``(k, 3)``, root first).
+
+    Its root-to-end axis and bend onto the new ones; for a straight chain, the smallest
+    turn of the axis.
+    """
     f_old, f_new = _frame(old), _frame(new)
     if f_old is not None and f_new is not None:
         return f_new @ f_old.T
-    a = (old[-1] - old[0]) / max(float(np.linalg.norm(old[-1] - old[0])), 1e-12)
-    b = (new[-1] - new[0]) / max(float(np.linalg.norm(new[-1] - new[0])), 1e-12)
-    v, c = np.cross(a, b), float(a @ b)
-    if c < -1.0 + 1e-9:  # reversed: a half turn about any axis across it
-        u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-        u /= np.linalg.norm(u)
-        return 2.0 * np.outer(u, u) - np.eye(3)
-    vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-    return np.eye(3) + vx + vx @ vx / (1.0 + c)
+    return rotation_between(old[-1] - old[0], new[-1] - new[0])
 
 
 def _targets(arm_obj: bpy.types.Object, solved: _Solved, plan: Redirects
@@ -204,7 +201,8 @@ def pose_controls(arm_obj: bpy.types.Object, data: ArmatureData, pose: Pose,
             matrix[:3, 3] = head
         written[name] = _set_pose_matrix(arm_obj, name, matrix, rotation is not None,
                                          head is not None)
-    for name in followers(arm_obj, plan, allowed, solved.index):
+    following = followers(arm_obj, plan, allowed, solved.index)
+    for name in following:
         got = _evaluated(arm_obj, name)
         if _angle(got, solved.rotation(name)) > FOLLOW_TOLERANCE:  # a chain's twist
             matrix = got.copy()
@@ -212,7 +210,7 @@ def pose_controls(arm_obj: bpy.types.Object, data: ArmatureData, pose: Pose,
             changed = _set_pose_matrix(arm_obj, name, matrix, True, False)
             if changed:
                 written[name] = changed
-    _check(arm_obj, solved, plan, allowed)
+    _check(arm_obj, solved, plan, following)
     return written
 
 
@@ -247,20 +245,19 @@ def _angle(matrix: np.ndarray, rotation: np.ndarray, axis_only: bool = False) ->
 
 
 def _check(arm_obj: bpy.types.Object, solved: _Solved, plan: Redirects,
-           allowed: list[str]) -> None:
+           following: list[str]) -> None:
     """Raise when a bone the plan poses, or one below, is evaluated off its solved pose.
 
     A bone of an IK chain must have its solved head and direction: the twist of a
     chain's bones about their own axes is the rig's (the pole's plane and the knee's
-    bend), not the drawing's. A bone copying its control, and the allowed bones without
-    constraints below those and the controls (:func:`followers`: a toe), their head and
-    whole rotation. Other bones are the free rig's, written as before.
+    bend), not the drawing's. A bone copying its control, and ``following`` (the bones
+    :func:`followers` gives: a toe), their head and whole rotation. Other bones are the
+    free rig's, written as before.
     """
     rest = np.array([[*b.head_local, *b.tail_local] for b in arm_obj.data.bones])
     size = float(np.ptp(rest.reshape(-1, 3), axis=0).max())
     chained = {n: ch.target for ch in plan.chains for n in ch.chain}
-    for name in sorted(plan.handled, key=solved.index.get) + followers(
-            arm_obj, plan, allowed, solved.index):
+    for name in sorted(plan.handled, key=solved.index.get) + following:
         got = _evaluated(arm_obj, name)
         angle = _angle(got, solved.rotation(name), axis_only=name in chained)
         gap = float(np.linalg.norm(got[:3, 3] - solved.head(name)))
