@@ -823,7 +823,7 @@ def add_ik_leg(arm_obj: bpy.types.Object, side: str = "R", pole_distance: float 
     Raises:
         RuntimeError: No quarter-turn pole angle keeps the rest pose.
     """
-    foot_name, shin, thigh = f"foot.{side}", f"shin.{side}", f"thigh.{side}"
+    foot_name, shin = f"foot.{side}", f"shin.{side}"
     target, pole_name = f"foot_ik.{side}", f"knee_pole.{side}"
     bpy.context.view_layer.objects.active = arm_obj
     bpy.ops.object.mode_set(mode="EDIT")
@@ -836,10 +836,24 @@ def add_ik_leg(arm_obj: bpy.types.Object, side: str = "R", pole_distance: float 
     pole.tail = knee + Vector((0.0, -pole_distance - 0.1, 0.0))
     control.use_deform = pole.use_deform = False
     bpy.ops.object.mode_set(mode="OBJECT")
+    constrain_ik_leg(arm_obj, side)
+
+
+def constrain_ik_leg(arm_obj: bpy.types.Object, side: str = "L") -> None:
+    """The constraints of :func:`add_ik_leg` on a leg whose controls exist.
+
+    ``shin.<side>`` gets an IK constraint (chain of 2) aimed at ``foot_ik.<side>`` with
+    the pole ``knee_pole.<side>``, at the quarter-turn pole angle that keeps the rest
+    pose; ``foot.<side>`` copies the control's rotation.
+
+    Raises:
+        RuntimeError: No quarter-turn pole angle keeps the rest pose.
+    """
+    shin, thigh, target = f"shin.{side}", f"thigh.{side}", f"foot_ik.{side}"
     ik = arm_obj.pose.bones[shin].constraints.new("IK")
     ik.target, ik.subtarget, ik.chain_count = arm_obj, target, 2
-    ik.pole_target, ik.pole_subtarget = arm_obj, pole_name
-    copy = arm_obj.pose.bones[foot_name].constraints.new("COPY_ROTATION")
+    ik.pole_target, ik.pole_subtarget = arm_obj, f"knee_pole.{side}"
+    copy = arm_obj.pose.bones[f"foot.{side}"].constraints.new("COPY_ROTATION")
     copy.target, copy.subtarget = arm_obj, target
     rest = {n: np.array(arm_obj.pose.bones[n].matrix) for n in (thigh, shin)}
     for angle in (-90.0, 90.0, 0.0, 180.0):

@@ -68,6 +68,21 @@ def link(obj):
     return obj
 
 
+def add_empty(name: str = "Target", location: Sequence[float] = (0.0, 0.0, 0.0)):
+    """An empty object at ``location``, linked to the scene (a constraint's target)."""
+    obj = link(bpy.data.objects.new(name, None))
+    obj.location = location
+    return obj
+
+
+def constrain(rig, bone: str, kind: str, **settings):
+    """Add a constraint of ``kind`` to a pose bone, with its settings; returns it."""
+    c = rig.pose.bones[bone].constraints.new(kind)
+    for key, value in settings.items():
+        setattr(c, key, value)
+    return c
+
+
 def build_armature(rows: Sequence[BoneRow], name: str = "Rig",
                    location: Sequence[float] = (0.0, 0.0, 0.0),
                    rotation_euler: Sequence[float] = (0.0, 0.0, 0.0), scale: float = 1.0):

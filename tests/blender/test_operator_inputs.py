@@ -41,7 +41,7 @@ from sample_scenes import abstraction_builders as ab
 from sample_scenes import builders
 from sample_scenes import stick_builders as sb
 
-from .conftest import build_armature
+from .conftest import add_empty, build_armature, constrain
 
 bpy = pytest.importorskip("bpy")
 
@@ -641,18 +641,8 @@ def test_edit_stick_figure_reports_a_failed_solve_and_goes_on(registered,
 COPY_ROTATION = r"'forearm.L' \(its constraint 'Copy Rotation'\) is posed by constraints"
 
 
-def _constrain(arm, bone: str, kind: str, **settings):
-    c = arm.pose.bones[bone].constraints.new(kind)
-    for key, value in settings.items():
-        setattr(c, key, value)
-    return c
-
-
-def _target(name: str = "Target"):
-    obj = bpy.data.objects.new(name, None)
-    bpy.context.scene.collection.objects.link(obj)
-    obj.location = (0.6, -0.4, 1.9)
-    return obj
+def _target():
+    return add_empty("Target", (0.6, -0.4, 1.9))
 
 
 def test_pose_stroke_refuses_a_chain_a_constraint_poses(registered, returned) -> None:
@@ -662,7 +652,7 @@ def test_pose_stroke_refuses_a_chain_a_constraint_poses(registered, returned) ->
         arm, cam, ["upper_arm.L", "forearm.L", "hand.L", "fingers.L"],
         builders.HUMANOID_POSES["raise_left_arm"])])
     _preset_keys(arm, "forearm.L", "head")
-    c = _constrain(arm, "forearm.L", "COPY_ROTATION", target=arm, subtarget="head")
+    c = constrain(arm, "forearm.L", "COPY_ROTATION", target=arm, subtarget="head")
     _refused(returned, "pose_stroke", COPY_ROTATION + r".*set their influence to 0\) to "
              r"pose these bones here\.$", arm, armature=arm.name, sketch=sketch.name)
     c.mute = True  # muted, it no longer poses the bone
@@ -680,7 +670,7 @@ def test_pose_refuses_an_ik_chain_and_poses_the_rest_once_it_is_pinned(
     builders.apply_rotations(arm, {"thigh.R": ((1.0, 0.0, 0.0), 30.0)})
     bpy.context.view_layer.update()
     sketch, _, _ = _exact_fit(arm, monkeypatch)
-    _constrain(arm, "forearm.L", "IK", target=_target(), chain_count=2)
+    constrain(arm, "forearm.L", "IK", target=_target(), chain_count=2)
     _refused(returned, "pose_drawing", r"'upper_arm.L' \(the IK constraint 'IK' on "
              r"'forearm.L'\), 'forearm.L' \(the IK constraint 'IK' on 'forearm.L'\) are "
              r"posed by constraints", arm, armature=arm.name, sketch=sketch.name)
@@ -703,7 +693,7 @@ def test_pose_stick_figure_refuses_a_driven_thigh_and_a_constrained_pelvis(
         fc = arm.pose.bones["thigh.L"].driver_add("rotation_quaternion", k)
         fc.driver.type = "SCRIPTED"
         fc.driver.expression = value
-    _constrain(arm, "pelvis", "COPY_LOCATION", target=_target())
+    constrain(arm, "pelvis", "COPY_LOCATION", target=_target())
     _preset_keys(arm, "thigh.L", "head")
     _refused(returned, "pose_stick_figure",
              r"'thigh.L' \(a driver on its rotation_quaternion\).*'pelvis' \(its "
@@ -716,7 +706,7 @@ def test_flip_depth_refuses_a_limb_with_a_constrained_bone(registered, returned)
     builders.apply_rotations(arm, {"forearm.L": ((1.0, 0.0, 0.0), 50.0)})
     bpy.context.view_layer.update()
     _preset_keys(arm, "forearm.L", "head")
-    _constrain(arm, "hand.L", "DAMPED_TRACK", target=_target())
+    constrain(arm, "hand.L", "DAMPED_TRACK", target=_target())
     _refused(returned, "flip_depth", r"'hand.L' \(its constraint 'Damped Track'\)", arm,
              armature=arm.name, bone="forearm.L")
 
@@ -735,7 +725,7 @@ def test_drawover_refuses_a_bone_a_constraint_poses(registered, returned) -> Non
     # Aimed along the forearm as it is: the character under the strokes does not move.
     aim = _target()
     aim.location = head + 2.0 * (tail - head)
-    _constrain(arm, "forearm.L", "DAMPED_TRACK", target=aim)
+    constrain(arm, "forearm.L", "DAMPED_TRACK", target=aim)
     _refused(returned, "drawover", r"'forearm.L' \(its constraint 'Damped Track'\) is "
              r"posed.*'Pinned' bone collection", arm, armature=arm.name, sketch=sketch.name)
 

@@ -7,7 +7,14 @@ import pytest
 
 from gesture_pose.core.exceptions import InputError
 
-from .conftest import add_camera, add_grease_pencil, build_armature, link
+from .conftest import (
+    add_camera,
+    add_empty,
+    add_grease_pencil,
+    build_armature,
+    constrain,
+    link,
+)
 
 bpy = pytest.importorskip("bpy")
 from mathutils import Quaternion, Vector  # noqa: E402
@@ -600,17 +607,6 @@ CHAIN_ROWS = [(n, (0, 0, k), (0, 0, k + 1), p, p is not None, 0.0)
               for k, (n, p) in enumerate([("a", None), ("b", "a"), ("c", "b"), ("d", "c")])]
 
 
-def _empty(name: str = "Target"):
-    return link(bpy.data.objects.new(name, None))
-
-
-def _constrain(rig, bone: str, kind: str, **settings):
-    c = rig.pose.bones[bone].constraints.new(kind)
-    for key, value in settings.items():
-        setattr(c, key, value)
-    return c
-
-
 def _rotation_overridden(rig) -> dict[str, str]:
     from gesture_pose.blender.constraints import overrides
 
@@ -624,7 +620,7 @@ def _rotation_overridden(rig) -> dict[str, str]:
     (1, True, {"d"})])
 def test_an_ik_constraint_takes_over_its_chain(bpy_blank, count, use_tail, expected):
     rig = build_armature(CHAIN_ROWS)
-    _constrain(rig, "d", "IK", target=_empty(), chain_count=count, use_tail=use_tail)
+    constrain(rig, "d", "IK", target=add_empty(), chain_count=count, use_tail=use_tail)
     found = _rotation_overridden(rig)
     assert set(found) == expected
     assert all(why == "the IK constraint 'IK' on 'd'" for why in found.values())
@@ -634,17 +630,17 @@ def test_constraints_that_do_not_set_rotation_or_do_not_act_are_ignored(bpy_blan
     from gesture_pose.blender.constraints import overrides
 
     rig = build_armature(CHAIN_ROWS)
-    target = _empty()
-    _constrain(rig, "a", "IK")  # targetless: Blender's Auto IK holds the chain as posed
-    _constrain(rig, "b", "COPY_ROTATION", target=target, mute=True)
-    _constrain(rig, "b", "DAMPED_TRACK", target=target, influence=0.0)
-    _constrain(rig, "c", "COPY_ROTATION")  # no target: invalid, not evaluated
-    _constrain(rig, "c", "LIMIT_ROTATION", use_limit_x=True)
-    _constrain(rig, "c", "COPY_SCALE", target=target)
-    _constrain(rig, "a", "COPY_ROTATION", target=target, mix_mode="ADD")  # an offset
-    _constrain(rig, "a", "CHILD_OF", target=target)  # a parent: the keys still show
-    _constrain(rig, "d", "COPY_LOCATION", target=target)
-    _constrain(rig, "d", "COPY_TRANSFORMS", target=target, mix_mode="AFTER_FULL")
+    target = add_empty()
+    constrain(rig, "a", "IK")  # targetless: Blender's Auto IK holds the chain as posed
+    constrain(rig, "b", "COPY_ROTATION", target=target, mute=True)
+    constrain(rig, "b", "DAMPED_TRACK", target=target, influence=0.0)
+    constrain(rig, "c", "COPY_ROTATION")  # no target: invalid, not evaluated
+    constrain(rig, "c", "LIMIT_ROTATION", use_limit_x=True)
+    constrain(rig, "c", "COPY_SCALE", target=target)
+    constrain(rig, "a", "COPY_ROTATION", target=target, mix_mode="ADD")  # an offset
+    constrain(rig, "a", "CHILD_OF", target=target)  # a parent: the keys still show
+    constrain(rig, "d", "COPY_LOCATION", target=target)
+    constrain(rig, "d", "COPY_TRANSFORMS", target=target, mix_mode="AFTER_FULL")
     assert _rotation_overridden(rig) == {}
     found = overrides(rig, ["d", "c"])
     assert found.location == ("its constraint 'Copy Location'", "")
@@ -673,7 +669,7 @@ def test_a_constraint_counts_exactly_when_blender_undoes_a_keyed_turn(bpy_blank,
     axis, Locked Track all but the turn about its locked axis: they count, as the solved
     rotation would not show."""
     rig = build_armature(CHAIN_ROWS)
-    target = _empty()
+    target = add_empty()
     target.location = (0.5, -0.7, 4.0)
     bone = "d" if kind == "IK" else "c"
     c = rig.pose.bones[bone].constraints.new(kind)
@@ -684,7 +680,7 @@ def test_a_constraint_counts_exactly_when_blender_undoes_a_keyed_turn(bpy_blank,
         c.target = target
     for key, value in settings.items():
         if key == "pole":
-            c.pole_target = _empty("Pole")
+            c.pole_target = add_empty("Pole")
             c.pole_target.location = (0.0, -2.0, 2.0)
         else:
             setattr(c, key, value)
@@ -719,7 +715,7 @@ def test_writing_constrained_bones_is_refused_before_anything_is_written(bpy_bla
     from gesture_pose.core.skeleton import Pose
 
     rig = build_armature(CHAIN_ROWS)
-    _constrain(rig, "c", "DAMPED_TRACK", target=_empty())
+    constrain(rig, "c", "DAMPED_TRACK", target=add_empty())
     data = read_armature(rig)
     turn = np.array(Quaternion((1.0, 0.0, 0.0), 0.4).to_matrix())
     rotations = np.array(data.pose.rotations)

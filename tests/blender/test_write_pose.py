@@ -192,24 +192,15 @@ STEP = {"thigh.L": -40.0, "shin.L": 65.0, "foot.L": -25.0}
 def ik_leg(bpy_blank):
     """The leg with an IK chain (shin, thigh) aimed at ``foot_ik.L`` with its pole, and
     the foot copying the control's rotation; the pole angle that keeps the rest pose."""
+    from sample_scenes import builders
+
     from .conftest import build_armature
 
     rig = build_armature(LEG_ROWS)
     for name in ("foot_ik.L", "knee_pole.L"):
         rig.data.bones[name].use_deform = False
-    ik = rig.pose.bones["shin.L"].constraints.new("IK")
-    ik.target, ik.subtarget, ik.chain_count = rig, "foot_ik.L", 2
-    ik.pole_target, ik.pole_subtarget = rig, "knee_pole.L"
-    copy = rig.pose.bones["foot.L"].constraints.new("COPY_ROTATION")
-    copy.target, copy.subtarget = rig, "foot_ik.L"
-    rest = {n: np.array(rig.pose.bones[n].matrix) for n in ("thigh.L", "shin.L")}
-    for angle in (-90.0, 90.0, 0.0, 180.0):
-        ik.pole_angle = np.radians(angle)
-        bpy.context.view_layer.update()
-        if all(np.allclose(np.array(rig.pose.bones[n].matrix), m, atol=1e-4)
-               for n, m in rest.items()):
-            return rig
-    raise AssertionError("no pole angle keeps the rest pose")
+    builders.constrain_ik_leg(rig, "L")
+    return rig
 
 
 def _step(data) -> Pose:
