@@ -30,6 +30,7 @@ from ..core.joint_skeleton import (
 )
 from ..core.rotations import orthonormalize
 from ..core.skeleton import Pose, Skeleton
+from .rigify import RigifyMap, reading_pose, rigify_map
 
 #: Pose-bone custom property that pins a bone (the solvers leave it alone).
 PINNED_PROPERTY = "gesture_pose_pinned"
@@ -69,6 +70,9 @@ class ArmatureData:
         rig_lock_rotation: For a rig read as its joint skeleton, its rotation locks on the
             real bones' axes (:meth:`axis_settings`); None otherwise.
         rig_ik_limits: Likewise its IK limits on the real bones' axes.
+        rigify: For a generated Rigify rig, how it is read and written (its skeleton is
+            then its reading bones, its pose Blender's evaluation; ``rigify.py``); None
+            otherwise.
     """
 
     object_name: str
@@ -85,6 +89,7 @@ class ArmatureData:
     warnings: tuple[str, ...] = ()
     rig_lock_rotation: np.ndarray | None = None
     rig_ik_limits: np.ndarray | None = None
+    rigify: RigifyMap | None = None
 
     def axis_settings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Locks and IK limits with the axes they are about, for solvers that take axes.
@@ -214,6 +219,9 @@ def read_armature(arm_obj: bpy.types.Object, joints: bool = True) -> ArmatureDat
     world = np.array(arm_obj.matrix_world, dtype=float)
     rot_o, scale = object_similarity(world, arm_obj.name)
 
+    rigify = rigify_map(arm_obj)
+    if rigify is not None:
+        return _read_rigify(arm_obj, rigify, world, rot_o, scale)
     blender_names = [b.name for b in bones]
     order = _parents_first([b.parent.name if b.parent else None for b in bones], blender_names)
     names = tuple(blender_names[i] for i in order)
@@ -304,3 +312,65 @@ def _as_joints(arm_obj: bpy.types.Object, skeleton: Skeleton, pose: Pose, lock: 
                     "the other modes ignore them.",)
     return (joint.skeleton, to_joint_pose(pose, joint.frame_change), joint.frame_change,
             lock, limits, warnings)
+
+
+def _read_rigify(arm_obj: bpy.types.Object, rigify: RigifyMap, world: np.ndarray,
+                 rot_o: np.ndarray, scale: float) -> ArmatureData:
+    """A generated Rigify rig read as its reading bones (``rigify.py``).
+
+    The pose is Blender's evaluation of those bones; pins, locks and the Gesture
+    collection are read from each bone's control as well as the bone itself (animators
+    pin and lock the controls they see); the rig's IK limits are its IK chains', not
+    these bones', so none are read.
+    """
+    names_all = rigify.reading
+    parent_names = [names_all[p] if p >= 0 else None for p in rigify.parents]
+    order = _parents_first(parent_names, list(names_all))
+    names = tuple(names_all[i] for i in order)
+    position = {n: i for i, n in enumerate(names)}
+    parents = np.array([position[parent_names[i]] if parent_names[i] else -1
+                        for i in order], dtype=int)
+    bones, pose_bones = arm_obj.data.bones, arm_obj.pose.bones
+    local = np.array([np.array(bones[n].matrix_local) for n in names])
+    heads = np.array([bones[n].head_local for n in names]) @ world[:3, :3].T + world[:3, 3]
+    tails = np.array([bones[n].tail_local for n in names]) @ world[:3, :3].T + world[:3, 3]
+    frames = rot_o @ orthonormalize(local[:, :3, :3])
+    connected = np.array([p >= 0 and np.allclose(heads[i], tails[p], atol=1e-6)
+                          for i, p in enumerate(parents)], bool)
+    skeleton = Skeleton(names, parents, heads, tails, frames, np.ones(len(names), bool),
+                        connected, rigify.deform[order])
+    bpy.context.view_layer.update()
+    rotations, translations = reading_pose(arm_obj, names, parents)
+    if not (np.all(np.isfinite(rotations)) and np.all(np.isfinite(translations))):
+        raise InputError(f"Armature '{arm_obj.name}' has NaN pose values: clear the pose "
+                         "(Alt+R, Alt+G) of its controls.")
+    pose = Pose(orthonormalize(rotations), translations * scale)
+    controls = [rigify.controls.get(n, n) for n in names]
+    pinned = np.array([bool(pose_bones[n].get(PINNED_PROPERTY, False)
+                            or pose_bones[c].get(PINNED_PROPERTY, False))
+                       for n, c in zip(names, controls, strict=True)], bool)
+    gesture = None
+    for group, mask in ((PINNED_COLLECTION, None), (GESTURE_COLLECTION, None)):
+        own = _collection_mask(arm_obj.data, group, names)
+        ctl = _collection_mask(arm_obj.data, group, tuple(controls))
+        if own is not None or ctl is not None:
+            mask = np.zeros(len(names), bool) if own is None else own
+            mask = mask | (ctl if ctl is not None else False)
+            if group == PINNED_COLLECTION:
+                pinned |= mask
+            else:
+                gesture = mask
+    lock = np.array([tuple(pose_bones[c].lock_rotation) for c in controls], bool)
+    return ArmatureData(
+        object_name=arm_obj.name,
+        skeleton=skeleton,
+        pose=pose,
+        rotation_modes=tuple(pose_bones[c].rotation_mode for c in controls),
+        pinned=pinned,
+        gesture_override=gesture,
+        lock_rotation=lock,
+        ik_limits=np.full((len(names), 3, 2), np.nan),
+        object_scale=scale,
+        matrix_world=world,
+        rigify=rigify,
+    )

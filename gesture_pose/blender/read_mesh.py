@@ -85,13 +85,17 @@ def _triangles(mesh) -> np.ndarray:
     return tris.reshape(-1, 3)
 
 
-def _weights(obj, skeleton: Skeleton) -> np.ndarray:
-    """Raw (unnormalized) bone weights of one mesh object, ``(v, n_bones)`` float32."""
+def _weights(obj, skeleton: Skeleton, groups: dict[str, str]) -> np.ndarray:
+    """Raw (unnormalized) bone weights of one mesh object, ``(v, n_bones)`` float32.
+
+    ``groups`` maps vertex groups to the skeleton bones they deform with when the names
+    differ (a Rigify rig's ``DEF-`` segments to its reading bones).
+    """
     mesh = obj.data
     column = np.full(max(len(obj.vertex_groups), 1), -1, dtype=np.int64)
     bone = {name: i for i, name in enumerate(skeleton.names)}
     for vg in obj.vertex_groups:
-        column[vg.index] = bone.get(vg.name, -1)
+        column[vg.index] = bone.get(vg.name, bone.get(groups.get(vg.name, ""), -1))
     # One pass over the (vertex, group) pairs: Blender has no bulk reader for them.
     pairs = [(v.index, g.group, g.weight) for v in mesh.vertices for g in v.groups]
     out = np.zeros((len(mesh.vertices), skeleton.n_bones), dtype=np.float32)
@@ -131,13 +135,23 @@ def rest_skin(arm_obj: bpy.types.Object, skeleton: Skeleton
     objects = meshes_of(arm_obj)
     if not objects:
         return None
-    parts = [_object_skin(o, skeleton) for o in objects]
+    groups = _groups(arm_obj)
+    parts = [_object_skin(o, skeleton, groups) for o in objects]
     return np.concatenate([v for v, _ in parts]), np.concatenate([w for _, w in parts])
 
 
-def _object_skin(obj, skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
+def _groups(arm_obj: bpy.types.Object) -> dict[str, str]:
+    """Vertex groups read as other bones: a generated Rigify rig's deform bones."""
+    from .rigify import rigify_map
+
+    rig = rigify_map(arm_obj)
+    return rig.groups if rig is not None else {}
+
+
+def _object_skin(obj, skeleton: Skeleton, groups: dict[str, str]
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """One mesh object's rest vertices in world space and normalized bone weights."""
-    w = _weights(obj, skeleton)
+    w = _weights(obj, skeleton, groups)
     total = w.sum(axis=1, keepdims=True)
     return (_world(_positions(obj.data), obj.matrix_world),
             np.divide(w, total, out=np.zeros_like(w), where=total > 0))
@@ -168,8 +182,9 @@ def read_skinned_meshes(arm_obj: bpy.types.Object, skeleton: Skeleton,
     depsgraph = bpy.context.evaluated_depsgraph_get() if depsgraph is None else depsgraph
     rest, deformed, tris, weights, warnings = [], [], [], [], []
     offset = 0
+    groups = _groups(arm_obj)
     for obj in objects:
-        r, w = _object_skin(obj, skeleton)
+        r, w = _object_skin(obj, skeleton, groups)
         evaluated = obj.evaluated_get(depsgraph)
         mesh = evaluated.to_mesh()
         try:

@@ -160,6 +160,8 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
     rotating = [names[i] for i in selected if diff[i] > tol]
     allowed = [names[i] for i in selected]
     relocated = [names[i] for i in sorted(with_location) if moved[i]]
+    if data.rigify is not None:
+        return _apply_rigify(arm_obj, data, solved, rotating, relocated, insert_keys, frame)
     plan = plan_redirects(arm_obj, allowed if redirect else [], rotating + relocated,
                           [names[i] for i in np.flatnonzero(data.pinned)])
     handled = plan.handled
@@ -192,6 +194,44 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
     return sorted(channels, key=lambda n: position.get(n, len(names)))
 
 
+def _apply_rigify(arm_obj: bpy.types.Object, data: ArmatureData, solved: Pose,
+                  rotating: list[str], relocated: list[str], insert_keys: bool,
+                  frame: float) -> list[str]:
+    """:func:`apply_pose` on a generated Rigify rig: through its controls (``rigify.py``).
+
+    The root's location (``relocated``) moves the control carrying the whole figure; the
+    limbs switched from IK to FK have their ``IK_FK`` property keyed with the pose.
+    """
+    from .rigify import IK_FK, pose_rig
+
+    if not rotating and not relocated:
+        return []
+    rig = data.rigify
+    holders = sorted(set(rig.switches.values()))
+    keep = sorted({*rig.controls.values(), *holders}
+                  | {p.name for c in rig.controls.values()
+                     for p in arm_obj.data.bones[c].parent_recursive})
+    saved = _channel_values(arm_obj, keep)
+    switches = {h: arm_obj.pose.bones[h].get(IK_FK) for h in holders}
+    switched: list[str] = []
+    try:
+        channels = pose_rig(arm_obj, data, solved, rotating, switched)
+    except Exception:
+        for holder, value in switches.items():
+            if value is not None:
+                arm_obj.pose.bones[holder][IK_FK] = value
+        arm_obj.update_tag()
+        _restore(arm_obj, saved)
+        raise
+    for holder in switched:
+        channels.setdefault(holder, []).append(f'["{IK_FK}"]')
+    if insert_keys:
+        for name, written in channels.items():
+            for channel in written:
+                arm_obj.pose.bones[name].keyframe_insert(channel, frame=frame, group=name)
+    return sorted(channels)
+
+
 def _channel_values(arm_obj: bpy.types.Object, names: Sequence[str]) -> dict:
     """Every rotation channel, location and scale of the named pose bones, as they are."""
     out = {}
@@ -218,7 +258,8 @@ def keyed_frames(arm_obj: bpy.types.Object, bone_name: str, channel: str) -> lis
     Args:
         arm_obj: The armature object.
         bone_name: Pose bone name.
-        channel: Property name, e.g. ``'rotation_quaternion'`` or ``'location'``.
+        channel: Property name, e.g. ``'rotation_quaternion'`` or ``'location'``, or a
+            custom property's path (``'["IK_FK"]'``).
 
     Returns:
         Sorted distinct key frames over all components of the channel.
@@ -231,7 +272,8 @@ def keyed_frames(arm_obj: bpy.types.Object, bone_name: str, channel: str) -> lis
     bag = action_get_channelbag_for_slot(anim.action, anim.action_slot)
     if bag is None:
         return []
-    path = f'pose.bones["{bpy.utils.escape_identifier(bone_name)}"].{channel}'
+    dot = "" if channel.startswith("[") else "."  # a custom property: '["IK_FK"]'
+    path = f'pose.bones["{bpy.utils.escape_identifier(bone_name)}"]{dot}{channel}'
     frames: set[float] = set()
     for fcurve in bag.fcurves:
         if fcurve.data_path == path and len(fcurve.keyframe_points):

@@ -133,6 +133,10 @@ def without_objects(mesh: MeshData, excluded: set[str]) -> MeshData:
 def read_rig_job(op, context, arm_obj, abstraction_objects=()) -> RigJob:
     """Read the armature, its meshes (not the abstractions) and the choices of ``op``."""
     arm = read_armature(arm_obj)
+    if arm.rigify is not None:  # its rig parameters are its controls, not its bones
+        raise InputError(f"'{arm_obj.name}' is a generated Rigify rig: the abstraction "
+                         "tools do not pose it yet (Pose and Pose Stroke do, through its "
+                         "FK controls). Nothing was changed.")
     start, warnings = read_rig_pose(arm_obj, arm)
     mesh = without_objects(
         read_skinned_meshes(arm_obj, arm.skeleton, context.evaluated_depsgraph_get()),

@@ -1,0 +1,200 @@
+"""A generated Rigify rig: read as its metarig's bones, posed through its FK controls."""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from gesture_pose.blender.read_armature import read_armature
+from gesture_pose.blender.rigify import IK_FK
+from gesture_pose.blender.write_pose import apply_pose, keyed_frames
+from gesture_pose.core.exceptions import InputError
+from gesture_pose.core.skeleton import Pose
+from sample_scenes import builders
+
+ARM_L = ("ORG-upper_arm.L", "ORG-forearm.L", "DEF-hand.L")
+
+
+@pytest.fixture
+def rig(bpy_blank):
+    """Rigify's basic human, generated headless (the add-on enabled for the test)."""
+    import addon_utils
+
+    addon_utils.enable("rigify", default_set=True)
+    try:
+        import rigify
+
+        rigify.register_rig_parameters()  # the module's enable leaves them out
+        bpy.ops.object.armature_basic_human_metarig_add()
+        bpy.ops.pose.rigify_generate()
+        obj = bpy.context.active_object
+        bpy.context.view_layer.update()
+        yield obj
+    finally:
+        addon_utils.disable("rigify", default_set=True)
+
+
+def _turned(data, turns: dict[str, np.ndarray], shift=(0.0, 0.0, 0.0)) -> Pose:
+    rot = np.array(data.pose.rotations)
+    for name, rotvec in turns.items():
+        rot[data.skeleton.index(name)] = Rotation.from_rotvec(rotvec).as_matrix()
+    trans = np.array(data.pose.translations)
+    trans[0] += shift
+    return Pose(rot, trans)
+
+
+def _evaluated(rig, name: str) -> np.ndarray:
+    return np.array(rig.matrix_world @ rig.pose.bones[name].matrix, dtype=float)
+
+
+def test_the_rig_is_read_as_its_metarig_bones(rig):
+    """One reading bone per metarig bone, with the metarig's parents and the rest pose;
+    the split deform segments weigh with the bone they split."""
+    from gesture_pose.blender.rigify import rigify_map
+
+    data = read_armature(rig)
+    sk = data.skeleton
+    parent = {n: sk.names[p] if p >= 0 else None for n, p in zip(sk.names, sk.parents,
+                                                                  strict=True)}
+    assert sk.names[0] == "DEF-spine" and parent["DEF-spine"] is None
+    assert parent["DEF-spine.001"] == "DEF-spine"  # through the torso, by the rest joint
+    assert parent["neck"] == "DEF-spine.003" and parent["DEF-spine.006"] == "neck"
+    assert parent["ORG-upper_arm.L"] == "DEF-shoulder.L"
+    assert parent["ORG-thigh.R"] == "DEF-spine"
+    assert not any(n.startswith(("MCH-", "tweak_")) for n in sk.names)
+    assert np.abs(data.pose.rotations - np.eye(3)).max() < 1e-5
+    assert np.abs(data.pose.translations).max() < 1e-5
+    assert not sk.deform[sk.index("ORG-heel.02.L")] and sk.deform[sk.index("neck")]
+    groups = rigify_map(rig).groups
+    assert groups["DEF-upper_arm.L.001"] == "ORG-upper_arm.L"
+    assert groups["DEF-spine.005"] == "neck"
+
+
+def test_a_pose_is_written_through_the_controls_and_keyed(rig):
+    """Arm, spine, neck, head, a leg and the root's place: Blender's evaluation of the
+    reading bones gives the solved pose back (the middle of the spine up to its twist);
+    the arm and leg written are switched to FK with the switch keyed; the left leg and
+    right arm, left in IK, keep their planted foot and hand; only the controls are
+    keyed, at one frame."""
+    bpy.context.scene.frame_set(7)
+    data = read_armature(rig)
+    rng = np.random.default_rng(3)
+    names = (*ARM_L, "DEF-spine", "DEF-spine.001", "DEF-spine.002", "DEF-spine.003",
+             "neck", "DEF-spine.006", "ORG-thigh.R", "ORG-shin.R")
+    new = _turned(data, {n: rng.normal(0.0, 0.35, 3) for n in names}, (0.05, 0.02, -0.1))
+    foot = _evaluated(rig, "DEF-foot.L")[:3, 3]
+    hand = _evaluated(rig, "DEF-hand.R")[:3, 3]
+    written = apply_pose(rig, data, new, location_bones=[0], frame=7)
+
+    assert {"upper_arm_fk.L", "forearm_fk.L", "hand_fk.L", "spine_fk.002", "neck", "head",
+            "thigh_fk.R", "torso", "upper_arm_parent.L", "thigh_parent.R"} <= set(written)
+    assert not any(n.startswith(("DEF-", "ORG-", "MCH-")) for n in written)
+    assert rig.pose.bones["upper_arm_parent.L"][IK_FK] == 1.0
+    assert rig.pose.bones["thigh_parent.R"][IK_FK] == 1.0
+    assert rig.pose.bones["thigh_parent.L"][IK_FK] == 0.0  # untouched: still IK
+    assert rig.pose.bones["upper_arm_parent.R"][IK_FK] == 0.0
+    assert keyed_frames(rig, "upper_arm_parent.L", f'["{IK_FK}"]') == [7.0]
+    assert keyed_frames(rig, "upper_arm_fk.L", "rotation_quaternion") == [7.0]
+    assert keyed_frames(rig, "torso", "location") == [7.0]
+    assert keyed_frames(rig, "thigh_parent.L", f'["{IK_FK}"]') == []
+    assert keyed_frames(rig, "DEF-spine", "rotation_quaternion") == []
+    assert np.abs(_evaluated(rig, "DEF-foot.L")[:3, 3] - foot).max() < 1e-3  # IK: 0.2 mm
+    assert np.abs(_evaluated(rig, "DEF-hand.R")[:3, 3] - hand).max() < 1e-3
+
+    state = data.skeleton.forward(new)
+    in_ik = {"ORG-thigh.L", "ORG-shin.L", "DEF-foot.L", "DEF-toe.L", "ORG-heel.02.L",
+             "ORG-upper_arm.R", "ORG-forearm.R", "DEF-hand.R"}
+    for i, name in enumerate(data.skeleton.names):
+        if name in in_ik:
+            continue
+        got = _evaluated(rig, name)
+        rot = got[:3, :3] / np.linalg.norm(got[:3, :3], axis=0)
+        assert np.linalg.norm(got[:3, 3] - state.heads[i]) < 1e-4, name
+        if name in ("DEF-spine.001", "DEF-spine.002"):  # the twist is the rig's
+            assert rot[:, 1] @ state.frames[i][:, 1] > np.cos(np.radians(0.1)), name
+        else:
+            assert np.abs(rot - state.frames[i]).max() < 2e-3, name
+    back = read_armature(rig)
+    for name in ARM_L + ("ORG-thigh.R", "ORG-shin.R", "DEF-spine", "neck"):
+        i = data.skeleton.index(name)
+        assert np.abs(back.pose.rotations[i] - new.rotations[i]).max() < 2e-3, name
+
+
+def test_a_pose_the_controls_cannot_give_is_refused_and_nothing_changes(rig):
+    """A Limit Rotation on the FK upper arm clips it: the write is refused with the bone
+    and its control named, every channel and the IK/FK switch are put back, no key."""
+    limit = rig.pose.bones["upper_arm_fk.L"].constraints.new("LIMIT_ROTATION")
+    limit.use_limit_x = limit.use_limit_y = limit.use_limit_z = True
+    limit.owner_space = "LOCAL"
+    bpy.context.view_layer.update()
+    data = read_armature(rig)
+    before = {pb.name: tuple(pb.rotation_quaternion) for pb in rig.pose.bones}
+    new = _turned(data, {"ORG-upper_arm.L": np.array([0.0, 0.0, 0.8])})
+    with pytest.raises(InputError, match=r"'ORG-upper_arm.L'.*'upper_arm_fk.L'"):
+        apply_pose(rig, data, new)
+    assert {pb.name: tuple(pb.rotation_quaternion) for pb in rig.pose.bones} == before
+    assert rig.pose.bones["upper_arm_parent.L"][IK_FK] == 0.0
+    assert rig.animation_data is None or rig.animation_data.action is None
+
+
+def test_pose_stroke_poses_a_rigify_arm(registered, rig):
+    """Pose Stroke on the rig's left arm, drawn where a raised arm goes: the arm's
+    joints land on the stroke, through its FK controls, keyed at the frame."""
+    from gesture_pose.core.stroke import distance_to_polyline
+
+    bpy.context.scene.frame_set(4)
+    data = read_armature(rig)
+    cam = builders.add_camera(rig)
+    target = _turned(data, {"ORG-upper_arm.L": np.array([0.0, -0.9, 0.0]),
+                            "ORG-forearm.L": np.array([0.5, 0.0, 0.0])})
+    state = data.skeleton.forward(target)
+    idx = [data.skeleton.index(n) for n in ARM_L]
+    joints = np.concatenate([state.heads[idx], state.tails[idx[-1:]]])
+    t = np.linspace(0.0, 1.0, 12)[:, None]
+    stroke = np.concatenate([a + t * (b - a) for a, b in zip(joints[:-1], joints[1:],
+                                                             strict=True)])
+    gp = builders.add_grease_pencil("Sketch", [stroke])
+    assert bpy.ops.gesture_pose.pose_stroke(armature=rig.name, sketch=gp.name) == {"FINISHED"}
+    assert rig.pose.bones["upper_arm_parent.L"][IK_FK] == 1.0
+    assert keyed_frames(rig, "upper_arm_fk.L", "rotation_quaternion") == [4.0]
+    assert keyed_frames(rig, "upper_arm_fk.R", "rotation_quaternion") == []
+    after = read_armature(rig)
+    posed = after.skeleton.forward(after.pose)
+    pts = np.concatenate([posed.heads[idx[1:]], posed.tails[idx[-1:]]])
+    px = builders.project_to_pixels(pts, cam)
+    assert distance_to_polyline(px, builders.project_to_pixels(stroke, cam)).max() < 6.0
+
+
+def test_pose_on_a_rigify_rig(registered, rig, monkeypatch):
+    """Pose with the 2D fit replaced by the exact embedding of a known pose of the rig
+    (an arm raised, a knee bent, the chest turned): Blender's evaluation of the rig
+    takes the solved pose through its controls, near the known pose, keyed at the
+    frame on the FK controls of the switched limbs."""
+    from gesture_pose.core.gesture.depth.evaluation import joints_of
+    from gesture_pose.core.gesture.solving import solving_skeleton
+    from tests.blender.test_operator_inputs import _exact_fit
+
+    data = read_armature(rig)
+    known = _turned(data, {"ORG-upper_arm.L": np.array([0.0, -0.8, 0.3]),
+                           "ORG-forearm.L": np.array([0.6, 0.0, 0.0]),
+                           "ORG-thigh.R": np.array([0.7, 0.0, 0.0]),
+                           "ORG-shin.R": np.array([-0.9, 0.0, 0.0]),
+                           "DEF-spine.003": np.array([0.0, 0.25, 0.0])})
+    apply_pose(rig, data, known, insert_keys=False)
+    builders.add_camera(rig)
+    bpy.context.scene.frame_set(6)
+    sketch, truth, solving = _exact_fit(rig, monkeypatch)
+    assert bpy.ops.gesture_pose.pose_drawing(armature=rig.name,
+                                             sketch=sketch.name) == {"FINISHED"}
+    after = read_armature(rig)
+    s = solving_skeleton(after.skeleton)
+    got = joints_of(s, after.skeleton, after.pose)
+    want = joints_of(s, truth.skeleton, truth.pose)
+    height = float(np.ptp(after.skeleton.rest_heads[:, 2]))
+    err = np.linalg.norm(got - got[0] - want + want[0], axis=1) / height
+    assert err.mean() < 0.05
+    for name in ("upper_arm_fk.L", "forearm_fk.L", "thigh_fk.R", "shin_fk.R"):
+        assert keyed_frames(rig, name, "rotation_quaternion") == [6.0], name
+    assert keyed_frames(rig, "DEF-spine.003", "rotation_quaternion") == []
