@@ -76,7 +76,8 @@ def is_rigify(arm_obj: bpy.types.Object) -> bool:
 
 
 def _is_control(name: str) -> bool:
-    return not name.startswith(_PREFIXES) and not name.startswith("tweak_")
+    """Whether a bone is one an animator poses (not ``MCH-``, ``DEF-``, ``ORG-``, tweaks)."""
+    return not name.startswith(_PREFIXES) and "tweak" not in name
 
 
 def _same_rest(a: bpy.types.Bone, b: bpy.types.Bone, tol: float) -> bool:
@@ -189,19 +190,33 @@ def _assemble(arm_obj, reading: dict[str, str], controls: dict[str, str],
     orgs_of: dict[str, list[str]] = {}
     for org, read in reading.items():
         orgs_of.setdefault(read, []).append(org)
+    groups = _deform_groups(bones, reading)
+    owner = {**groups, **reading, **{n: n for n in names}}  # any bone -> its reading bone
     parents = np.full(len(names), -1)
     for i, name in enumerate(names):
         first = bones[orgs_of[name][0]]
         up = first.parent
-        while up is not None and reading.get(up.name, name) == name:
+        while up is not None and owner.get(up.name, name) == name:
             up = up.parent
-        if up is not None:
-            parents[i] = position[reading[up.name]]
+        if up is not None:  # a palm hangs from the hand's deform bone
+            parents[i] = position[owner[up.name]]
             continue
         tails = [o for o, r in reading.items()
                  if r != name and (bones[o].tail_local - first.head_local).length < tol]
         parents[i] = position[reading[tails[0]]] if tails else -1
-    groups, deform = {}, np.zeros(len(names), bool)
+    deform = np.zeros(len(names), bool)
+    deform[[position[r] for r in groups.values()]] = True
+    switches = {reading[o]: h for o, h in holders.items() if o in reading}
+    return RigifyMap(names, parents, deform, controls, switches, groups,
+                     _axis_only(arm_obj, names, controls))
+
+
+def _deform_groups(bones, reading: dict[str, str]) -> dict[str, str]:
+    """``{DEF- bone: reading bone}`` for the deforming ``DEF-`` bones.
+
+    Split segments (``DEF-upper_arm.L.001``) go with the bone they split.
+    """
+    groups = {}
     for b in bones:
         if b.name.startswith("DEF-") and b.use_deform:
             base = b.name[4:]
@@ -211,22 +226,30 @@ def _assemble(arm_obj, reading: dict[str, str], controls: dict[str, str],
                 org = f"ORG-{base}"
             if org in reading:
                 groups[b.name] = reading[org]
-                deform[position[reading[org]]] = True
-    switches = {reading[o]: h for o, h in holders.items() if o in reading}
-    return RigifyMap(names, parents, deform, controls, switches, groups,
-                     _axis_only(arm_obj, names, controls))
+    return groups
 
 
 def _axis_only(arm_obj, names: tuple[str, ...], controls: dict[str, str]) -> frozenset:
-    """The reading bones whose twist their control does not set (see ``RigifyMap``)."""
+    """The reading bones whose twist their control does not set (see ``RigifyMap``).
+
+    A bone that stretches to the next takes its twist from the bone it copies; following
+    that bone's parents (and, from an ``ORG-`` bone, the control it copies) up to the
+    first control tells whether its own control sets the twist, unless a bone on the
+    way blends in another (the spine's ``MCH-pivot``).
+    """
     out = set()
+    pbs = arm_obj.pose.bones
     for name in names:
-        pb = arm_obj.pose.bones[name]
+        pb = pbs[name]
         sources = _copy_sources(pb)
         if not sources or not any(c.type == "STRETCH_TO" for c in pb.constraints):
             continue
-        carrier = arm_obj.data.bones[sources[0]].parent
-        if controls.get(name) not in (sources[0], carrier.name if carrier else None):
+        bone, mixed = arm_obj.data.bones[sources[0]], False
+        while bone is not None and not _is_control(bone.name):
+            copied = _copy_sources(pbs[bone.name]) if bone.name.startswith("ORG-") else []
+            mixed |= not copied and len(pbs[bone.name].constraints) > 0  # a blend
+            bone = arm_obj.data.bones[copied[0]] if copied else bone.parent
+        if mixed or bone is None or bone.name != controls.get(name):
             out.add(name)
     return frozenset(out)
 
@@ -282,6 +305,25 @@ def _top_control(arm_obj: bpy.types.Object, name: str) -> str:
     return top
 
 
+def _limbs_of(data, changed: list[str]) -> list[str]:
+    """The ``IK_FK`` holders of the limbs holding a changed bone or a bone above it.
+
+    A finger below a hand in IK is posed from where the IK puts the hand only once the
+    arm is in FK (the solved pose places it from the hand the solver saw).
+    """
+    rig: RigifyMap = data.rigify
+    names, parents = data.skeleton.names, data.skeleton.parents
+    out = []
+    for name in changed:
+        i = data.skeleton.index(name)
+        while i >= 0:
+            holder = rig.switches.get(names[i])
+            if holder is not None and holder not in out:
+                out.append(holder)
+            i = parents[i]
+    return out
+
+
 def pose_rig(arm_obj: bpy.types.Object, data, pose, changed: list[str],
              insert_switches: list[str]) -> dict[str, list[str]]:
     """Pose a generated Rigify rig's reading bones through its controls.
@@ -289,8 +331,9 @@ def pose_rig(arm_obj: bpy.types.Object, data, pose, changed: list[str],
     Every reading bone with a control is brought to its solved rotation (those the
     write leaves alone to the rotation they have: a spine control also carries bones
     below it), the root's head to its solved place through the highest control above
-    it (the torso); limbs with a ``changed`` bone in IK are switched to FK first, and
-    limbs left in IK follow their IK controls (a planted foot stays planted when the
+    it (the torso); limbs in IK holding a ``changed`` bone, or one above a changed bone
+    (a hand above a finger), are switched to FK first, and limbs left in IK (with the
+    bones below them) follow their IK controls (a planted foot stays planted when the
     hips turn). The caller restores the channels on an error.
 
     Args:
@@ -316,7 +359,7 @@ def pose_rig(arm_obj: bpy.types.Object, data, pose, changed: list[str],
     if bare:
         raise InputError(f"Nothing was written: {bare[:5]} of the Rigify rig "
                          f"'{arm_obj.name}' have no control that poses them.")
-    for holder in dict.fromkeys(rig.switches[n] for n in changed if n in rig.switches):
+    for holder in _limbs_of(data, changed):
         if float(arm_obj.pose.bones[holder].get(IK_FK, 1.0)) < 1.0:
             arm_obj.pose.bones[holder][IK_FK] = 1.0
             insert_switches.append(holder)

@@ -17,9 +17,8 @@ from sample_scenes import builders
 ARM_L = ("ORG-upper_arm.L", "ORG-forearm.L", "DEF-hand.L")
 
 
-@pytest.fixture
-def rig(bpy_blank):
-    """Rigify's basic human, generated headless (the add-on enabled for the test)."""
+def _generated(metarig_add):
+    """A Rigify rig generated headless from a metarig (the add-on enabled meanwhile)."""
     import addon_utils
 
     addon_utils.enable("rigify", default_set=True)
@@ -27,13 +26,25 @@ def rig(bpy_blank):
         import rigify
 
         rigify.register_rig_parameters()  # the module's enable leaves them out
-        bpy.ops.object.armature_basic_human_metarig_add()
+        metarig_add()
         bpy.ops.pose.rigify_generate()
         obj = bpy.context.active_object
         bpy.context.view_layer.update()
         yield obj
     finally:
         addon_utils.disable("rigify", default_set=True)
+
+
+@pytest.fixture
+def rig(bpy_blank):
+    """Rigify's basic human (no fingers, no face)."""
+    yield from _generated(lambda: bpy.ops.object.armature_basic_human_metarig_add())
+
+
+@pytest.fixture
+def full_rig(bpy_blank):
+    """Rigify's human: fingers, palms and a face (about 5 s to generate)."""
+    yield from _generated(lambda: bpy.ops.object.armature_human_metarig_add())
 
 
 def _turned(data, turns: dict[str, np.ndarray], shift=(0.0, 0.0, 0.0)) -> Pose:
@@ -198,3 +209,33 @@ def test_pose_on_a_rigify_rig(registered, rig, monkeypatch):
     for name in ("upper_arm_fk.L", "forearm_fk.L", "thigh_fk.R", "shin_fk.R"):
         assert keyed_frames(rig, name, "rotation_quaternion") == [6.0], name
     assert keyed_frames(rig, "DEF-spine.003", "rotation_quaternion") == []
+
+
+def test_fingers_and_face_of_the_full_human(full_rig):
+    """On Rigify's human: palms hang from the hands, each finger is read as its FK
+    control; turning the neck, head, left arm and a finger of the right hand (its arm in
+    IK: the finger is posed from the hand the solver saw, so the arm is switched to FK)
+    gives the solved pose back on every reading bone, the face following the head."""
+    rig = full_rig
+    data = read_armature(rig)
+    sk = data.skeleton
+    parent = {n: sk.names[p] if p >= 0 else None for n, p in zip(sk.names, sk.parents,
+                                                                  strict=True)}
+    assert parent["DEF-palm.01.L"] == "DEF-hand.L"
+    assert parent["f_index.01.L"] == "DEF-palm.01.L" and parent["f_index.02.L"] == "f_index.01.L"
+    rng = np.random.default_rng(5)
+    new = _turned(data, {n: rng.normal(0.0, 0.35, 3) for n in (
+        "neck", "DEF-spine.006", *ARM_L, "f_index.01.R", "f_index.02.R", "thumb.01.R")})
+    written = apply_pose(rig, data, new, frame=2)
+    assert {"f_index.01.R", "thumb.01.R", "upper_arm_parent.R", "upper_arm_parent.L",
+            "neck", "head"} <= set(written)
+    assert rig.pose.bones["upper_arm_parent.R"][IK_FK] == 1.0
+    assert rig.pose.bones["thigh_parent.L"][IK_FK] == 0.0
+    assert keyed_frames(rig, "f_index.02.R", "rotation_quaternion") == [2.0]
+    state = sk.forward(new)
+    for i, name in enumerate(sk.names):
+        got = _evaluated(rig, name)
+        rot = got[:3, :3] / np.linalg.norm(got[:3, :3], axis=0)
+        assert np.linalg.norm(got[:3, 3] - state.heads[i]) < 1e-4, name
+        if name not in ("DEF-spine.001", "DEF-spine.002"):
+            assert np.abs(rot - state.frames[i]).max() < 2e-3, name
