@@ -376,8 +376,8 @@ def check_writable(arm_obj: bpy.types.Object, rotations: Sequence[str],
     rigify = ""
     if arm_obj.data.get("rig_id") is not None:
         rigify = (f"'{arm_obj.name}' is a generated Rigify rig: its DEF- and ORG- bones "
-                  "follow its controls; Gesture Pose poses such a rig through its FK "
-                  "controls, not through these bones. ")
+                  "follow its controls (Gesture Pose reads a Rigify rig that has its ORG- "
+                  "bones as its metarig's bones and poses it through its FK controls). ")
     pinned = (", or put them in the 'Pinned' bone collection to pose the rest"
               if pin_hint else "")
     verb = "is" if len(blocked) == 1 else "are"

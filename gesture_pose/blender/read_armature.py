@@ -91,6 +91,14 @@ class ArmatureData:
     rig_ik_limits: np.ndarray | None = None
     rigify: RigifyMap | None = None
 
+    @property
+    def roles(self) -> dict[str, str] | None:
+        """Humanoid roles the rig gives outright, or None (found by name).
+
+        A Rigify rig's pelvis and head (:attr:`.rigify.RigifyMap.roles`).
+        """
+        return self.rigify.roles if self.rigify is not None else None
+
     def axis_settings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Locks and IK limits with the axes they are about, for solvers that take axes.
 
@@ -334,6 +342,13 @@ def _read_rigify(arm_obj: bpy.types.Object, rigify: RigifyMap, world: np.ndarray
     local = np.array([np.array(bones[n].matrix_local) for n in names])
     heads = np.array([bones[n].head_local for n in names]) @ world[:3, :3].T + world[:3, 3]
     tails = np.array([bones[n].tail_local for n in names]) @ world[:3, :3].T + world[:3, 3]
+    if not (np.all(np.isfinite(local)) and np.all(np.isfinite(heads))
+            and np.all(np.isfinite(tails))):
+        raise InputError(f"Armature '{arm_obj.name}' has NaN bone data: generate the "
+                         "Rigify rig again from its metarig.")
+    if np.any(np.linalg.norm(tails - heads, axis=1) < 1e-9):
+        raise InputError(f"Zero-length bones in '{arm_obj.name}': generate the Rigify rig "
+                         "again from its metarig.")
     frames = rot_o @ orthonormalize(local[:, :3, :3])
     connected = np.array([p >= 0 and np.allclose(heads[i], tails[p], atol=1e-6)
                           for i, p in enumerate(parents)], bool)

@@ -6,11 +6,15 @@ stretch to the next, the limbs' ``DEF-`` bones are split into segments, and the
 original bones (``ORG-``) copy the FK or IK controls. The solvers need one bone per
 metarig bone, posed as Blender shows it, so the rig is read as its **reading bones**:
 
-- the ``DEF-`` bone of a metarig bone when it has the same rest head and tail (the spine,
-  whose ``ORG-`` bones hang from its tweaks, not from each other; the hands, feet, toes);
-- a control spanning a chain of ``ORG-`` bones that follow tweaks (the neck control over
-  the two neck bones, whose middle joint lies on the line from neck to head);
-- otherwise the ``ORG-`` bone (the split limb bones, shoulders, the pelvis sides).
+- the ``ORG-`` bone when it copies a control (limbs, hands, feet, toes, shoulders and
+  head: an exact copy of ``upper_arm_fk.L``, ``head``);
+- a control spanning a chain of ``ORG-`` bones that follow mechanism bones (the neck
+  control over the two neck bones, whose middle joint lies on the line from neck to
+  head; each finger's FK control);
+- the ``DEF-`` bone with the ``ORG-`` bone's rest head and tail when the ``ORG-`` bone
+  copies nothing (the spine, whose ``ORG-`` bones hang from its tweaks, not from each
+  other; palms, pelvis sides, the face);
+- otherwise the ``ORG-`` bone.
 
 Their parents are the metarig's (the nearest reading bone above in Blender's parents,
 or, where the chain goes through the torso's controls, the bone whose rest tail is the
@@ -19,15 +23,16 @@ their channels.
 
 Each reading bone is written through the control that turns it: the FK control its
 ``ORG-`` bone copies (``upper_arm_fk.L``), the spine's FK control (``spine_fk.002``),
-the neck and head controls. A limb in IK (its ``IK_FK`` property below 1) is switched to
-FK, and the switch is keyed with the pose. Controls are turned in their own hierarchy's
-order (the spine's FK controls hang from the torso's middle outwards), each by the turn
-its bone still needs, until Blender's evaluation gives the solved rotations back.
+the neck, head and finger controls. A limb in IK (its ``IK_FK`` property below 1) that
+the write changes is switched to FK at the frame written. Controls are turned in their
+own hierarchy's order (the spine's FK controls hang from the torso's middle outwards),
+each by the turn its bone still needs, until Blender's evaluation gives the solved
+rotations back.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import bpy
 import numpy as np
@@ -66,6 +71,44 @@ class RigifyMap:
     switches: dict[str, str]
     groups: dict[str, str]
     axis_only: frozenset[str] = frozenset()
+    orgs: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def roles(self) -> dict[str, str]:
+        """Humanoid roles the metarig's names do not give (``{role: reading bone}``).
+
+        The spine's first bone (the root) is the pelvis; the bone the ``head`` control
+        poses is the head.
+        """
+        out = {}
+        roots = [n for n, p in zip(self.reading, self.parents, strict=True) if p < 0]
+        if roots:
+            out["pelvis"] = roots[0]
+        head = next((r for r, c in self.controls.items() if c == "head"), None)
+        if head is not None:
+            out["head"] = head
+        return out
+
+    def reading_of(self, name: str) -> str:
+        """The reading bone a bone of the rig stands for, ``name`` itself otherwise.
+
+        A control (``upper_arm_fk.L``, ``upper_arm_ik.L``, the limb's
+        ``upper_arm_parent.L``), an ``ORG-`` bone or a ``DEF-`` segment: what an animator
+        selects to name a limb.
+        """
+        if name in self.reading:
+            return name
+        by_control = {c: r for r, c in self.controls.items()}
+        if name in by_control:
+            return by_control[name]
+        found = self.orgs.get(name) or self.groups.get(name)
+        if found:
+            return found
+        stem, dot, rest = name.partition(".")
+        for tag in ("_fk", "_ik", "_parent"):
+            if stem.endswith(tag):
+                return self.orgs.get(f"ORG-{stem[: -len(tag)]}{dot}{rest}", name)
+        return name
 
 
 def is_rigify(arm_obj: bpy.types.Object) -> bool:
@@ -88,7 +131,8 @@ def _same_rest(a: bpy.types.Bone, b: bpy.types.Bone, tol: float) -> bool:
 def _copy_sources(pb: bpy.types.PoseBone) -> list[str]:
     """The bones the Copy Transforms constraints of a pose bone copy, in stack order."""
     return [c.subtarget for c in pb.constraints
-            if c.type == "COPY_TRANSFORMS" and c.subtarget]
+            if c.type == "COPY_TRANSFORMS" and c.subtarget and c.target == pb.id_data
+            and c.subtarget in pb.id_data.pose.bones]
 
 
 def _switch_holders(arm_obj: bpy.types.Object) -> dict[str, str]:
@@ -162,8 +206,9 @@ def rigify_map(arm_obj: bpy.types.Object) -> RigifyMap | None:
         deform = bones.get(f"DEF-{base}")
         same = deform is not None and _same_rest(deform, org, tol)
         if sources and _is_control(sources[0]):  # FK limbs, shoulders, the head
-            read = deform.name if same else org.name
-            reading[org.name], controls[read] = read, sources[0]
+            # The ORG- bone is the control's exact copy (a DEF- foot stretches to the
+            # toe, which can twist it; a heel hangs from the ORG- foot).
+            reading[org.name], controls[org.name] = org.name, sources[0]
             continue
         span, covered = _spanning_control(arm_obj, org, tol) if sources else ("", [])
         if span:  # bones following tweaks under one control (the neck)
@@ -208,7 +253,7 @@ def _assemble(arm_obj, reading: dict[str, str], controls: dict[str, str],
     deform[[position[r] for r in groups.values()]] = True
     switches = {reading[o]: h for o, h in holders.items() if o in reading}
     return RigifyMap(names, parents, deform, controls, switches, groups,
-                     _axis_only(arm_obj, names, controls))
+                     _axis_only(arm_obj, names, controls), dict(reading))
 
 
 def _deform_groups(bones, reading: dict[str, str]) -> dict[str, str]:
@@ -305,6 +350,26 @@ def _top_control(arm_obj: bpy.types.Object, name: str) -> str:
     return top
 
 
+def _following(arm_obj: bpy.types.Object, data) -> set[str]:
+    """The reading bones that follow the rig, neither written nor compared.
+
+    The limbs left in IK, with the bones below them, follow their IK controls (a
+    planted foot stays planted when the hips turn); bones that are their own control
+    and locked on every axis (Rigify locks its heels and pelvis sides) follow theirs.
+    """
+    rig: RigifyMap = data.rigify
+    names, parents = data.skeleton.names, data.skeleton.parents
+    out = {n for n, h in rig.switches.items()
+           if float(arm_obj.pose.bones[h].get(IK_FK, 1.0)) < 1.0}
+    for i, name in enumerate(names):  # parents first: the bones below them
+        if parents[i] >= 0 and names[parents[i]] in out:
+            out.add(name)
+    # A locked bone turns with its parent as the solvers turn it: the bones below it
+    # are posed as usual.
+    return out | {n for n in names if rig.controls.get(n) == n
+                  and all(arm_obj.pose.bones[n].lock_rotation)}
+
+
 def _limbs_of(data, changed: list[str]) -> list[str]:
     """The ``IK_FK`` holders of the limbs holding a changed bone or a bone above it.
 
@@ -358,7 +423,9 @@ def pose_rig(arm_obj: bpy.types.Object, data, pose, changed: list[str],
     bare = [n for n in changed if n not in rig.controls]
     if bare:
         raise InputError(f"Nothing was written: {bare[:5]} of the Rigify rig "
-                         f"'{arm_obj.name}' have no control that poses them.")
+                         f"'{arm_obj.name}' have no control that poses them; put them in "
+                         "the 'Pinned' bone collection (or lock their rotation) to pose "
+                         "the rest.")
     for holder in _limbs_of(data, changed):
         if float(arm_obj.pose.bones[holder].get(IK_FK, 1.0)) < 1.0:
             arm_obj.pose.bones[holder][IK_FK] = 1.0
@@ -386,14 +453,8 @@ def pose_rig(arm_obj: bpy.types.Object, data, pose, changed: list[str],
         return True
 
     depth = {n: len(arm_obj.data.bones[c].parent_recursive) for n, c in rig.controls.items()}
-    # Limbs left in IK follow their IK controls (a planted foot stays planted).
-    ik = {n for n, h in rig.switches.items()
-          if float(arm_obj.pose.bones[h].get(IK_FK, 1.0)) < 1.0}
-    parents = data.skeleton.parents
-    for i, name in enumerate(names):  # and the bones below them (a heel)
-        if parents[i] >= 0 and names[parents[i]] in ik:
-            ik.add(name)
-    order = sorted((n for n in names if n in rig.controls and n not in ik),
+    following = _following(arm_obj, data)
+    order = sorted((n for n in names if n in rig.controls and n not in following),
                    key=lambda n: (depth[n], names.index(n)))
     for _ in range(PASSES):
         turned = False
@@ -415,7 +476,7 @@ def pose_rig(arm_obj: bpy.types.Object, data, pose, changed: list[str],
             break
     rest = np.array([[*b.head_local, *b.tail_local] for b in arm_obj.data.bones])
     size = float(np.ptp(rest.reshape(-1, 3), axis=0).max())
-    for name in (n for n in names if n not in ik):
+    for name in (n for n in names if n not in following):
         got = _evaluated(arm_obj, name)
         angle = _angle(got, solved.rotation(name), name in rig.axis_only)
         off = float(np.linalg.norm(got[:3, 3] - solved.head(name)))

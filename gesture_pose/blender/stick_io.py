@@ -214,7 +214,7 @@ def read_stick_scene(context, arm_obj, sketch_obj, snap_radius: float = SNAP_RAD
     if not all(np.all(np.isfinite(p)) for p in pts):
         raise InputError("Part of the drawing is behind the view: draw in front of the "
                          "camera.")
-    figure, _ = character_figure(data.skeleton, data.ik_limits)
+    figure, _ = character_figure(data.skeleton, data.ik_limits, data.roles)
     stick = stick_figure_from_strokes(pts, figure, snap_radius, facing,
                                       figure.edge_lengths(data.skeleton))
     for pair in sorted(read_swaps(context.scene)):
@@ -260,7 +260,7 @@ def solve_scene(context, op, arm_obj, sketch_obj) -> tuple[StickResult, list[str
     base, solved = base_pose(data, st.figure)
     inp = StickInput(
         skeleton=data.skeleton, camera=st.camera, stick=st.stick, environment=env,
-        mesh_vertices=verts, mesh_weights=weights, ik_limits=data.ik_limits,
+        mesh_vertices=verts, mesh_weights=weights, ik_limits=data.ik_limits, roles=data.roles,
         base_pose=base, env_pins=env_pins, limb_pins=limb_pins, seed=op.seed,
         n_suggestions=op.suggestions, facing=op.facing, use_contact=op.use_contact)
     result = solve_stick(inp)

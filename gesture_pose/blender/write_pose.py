@@ -127,7 +127,9 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
     Returns:
         Names of the bones written, in skeleton order: those whose channels changed,
         with the controls moved for constrained bones and the bones below them given
-        their solved pose again.
+        their solved pose again. For a generated Rigify rig (``data.rigify``), the
+        controls and the limbs' ``IK_FK`` holders written, in the armature's bone order
+        (:func:`_apply_rigify`).
 
     Bones whose rotation a constraint takes over are posed through the control it
     follows when there is one (:func:`.constraints.plan_redirects`: a copied rotation,
@@ -161,7 +163,8 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
     allowed = [names[i] for i in selected]
     relocated = [names[i] for i in sorted(with_location) if moved[i]]
     if data.rigify is not None:
-        return _apply_rigify(arm_obj, data, solved, rotating, relocated, insert_keys, frame)
+        return _apply_rigify(arm_obj, data, solved, allowed, rotating, relocated,
+                             insert_keys, frame)
     plan = plan_redirects(arm_obj, allowed if redirect else [], rotating + relocated,
                           [names[i] for i in np.flatnonzero(data.pinned)])
     handled = plan.handled
@@ -195,27 +198,46 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
 
 
 def _apply_rigify(arm_obj: bpy.types.Object, data: ArmatureData, solved: Pose,
-                  rotating: list[str], relocated: list[str], insert_keys: bool,
-                  frame: float) -> list[str]:
+                  allowed: list[str], rotating: list[str], relocated: list[str],
+                  insert_keys: bool, frame: float) -> list[str]:
     """:func:`apply_pose` on a generated Rigify rig: through its controls (``rigify.py``).
 
-    The root's location (``relocated``) moves the control carrying the whole figure; the
-    limbs switched from IK to FK have their ``IK_FK`` property keyed with the pose.
+    The bones outside ``allowed`` keep the rotations they have and the root keeps its
+    place unless it is ``relocated`` (the controls are then moved so that they do: a
+    spine control turns the hips about the spine's middle). A limb switched from IK to
+    FK has its ``IK_FK`` keyed at the frame, constant, between keys of its old value at
+    the frames either side, so the other frames keep their IK. A control channel that
+    is locked (``lock_rotation``, ``lock_location``) is never changed: the write is
+    refused instead.
     """
-    from .rigify import IK_FK, pose_rig
+    from .rigify import IK_FK, ROTATION_TOLERANCE, pose_rig
 
     if not rotating and not relocated:
         return []
     rig = data.rigify
+    old, new = np.asarray(data.pose.rotations), np.asarray(solved.rotations)
+    index = {n: i for i, n in enumerate(data.skeleton.names)}
+    # Solver noise does not switch a limb: only turns the controls would make count.
+    turn = np.degrees(2 * np.arcsin(np.minimum(
+        np.linalg.norm(new - old, axis=(1, 2)) / np.sqrt(8.0), 1.0)))
+    rotating = [n for n in rotating if turn[index[n]] > ROTATION_TOLERANCE / 4]
+    names = data.skeleton.names
+    keep = np.array([n not in set(allowed) for n in names])
+    rotations = np.where(keep[:, None, None], data.pose.rotations, solved.rotations)
+    translations = np.array(data.pose.translations, dtype=float)
+    for name in relocated:
+        translations[names.index(name)] = np.asarray(solved.translations)[names.index(name)]
+    effective = Pose(rotations, translations)
     holders = sorted(set(rig.switches.values()))
-    keep = sorted({*rig.controls.values(), *holders}
-                  | {p.name for c in rig.controls.values()
-                     for p in arm_obj.data.bones[c].parent_recursive})
-    saved = _channel_values(arm_obj, keep)
+    writable = sorted({*rig.controls.values(), *holders}
+                      | {p.name for c in rig.controls.values()
+                         for p in arm_obj.data.bones[c].parent_recursive})
+    saved = _channel_values(arm_obj, writable)
     switches = {h: arm_obj.pose.bones[h].get(IK_FK) for h in holders}
     switched: list[str] = []
     try:
-        channels = pose_rig(arm_obj, data, solved, rotating, switched)
+        channels = pose_rig(arm_obj, data, effective, rotating, switched)
+        _check_locks(arm_obj, saved, channels)
     except Exception:
         for holder, value in switches.items():
             if value is not None:
@@ -223,13 +245,69 @@ def _apply_rigify(arm_obj: bpy.types.Object, data: ArmatureData, solved: Pose,
         arm_obj.update_tag()
         _restore(arm_obj, saved)
         raise
-    for holder in switched:
-        channels.setdefault(holder, []).append(f'["{IK_FK}"]')
     if insert_keys:
         for name, written in channels.items():
             for channel in written:
                 arm_obj.pose.bones[name].keyframe_insert(channel, frame=frame, group=name)
-    return sorted(channels)
+        for holder in switched:
+            _key_switch(arm_obj, holder, IK_FK, float(switches[holder] or 0.0), frame)
+    for holder in switched:
+        channels.setdefault(holder, []).append(f'["{IK_FK}"]')
+    order = {b.name: i for i, b in enumerate(arm_obj.data.bones)}
+    return sorted(channels, key=order.get)
+
+
+def _check_locks(arm_obj: bpy.types.Object, saved: dict, channels: dict) -> None:
+    """Raise when a written control changed a locked component of a channel."""
+    for name, written in channels.items():
+        pb = arm_obj.pose.bones[name]
+        locks = {"location": tuple(pb.lock_location),
+                 "rotation_euler": tuple(pb.lock_rotation),
+                 "rotation_quaternion": (pb.lock_rotations_4d and pb.lock_rotation_w,
+                                         *pb.lock_rotation),
+                 "rotation_axis_angle": (pb.lock_rotations_4d and pb.lock_rotation_w,
+                                         *pb.lock_rotation)}
+        for channel in written:
+            if channel not in locks:
+                continue
+            moved = np.abs(np.array(getattr(pb, channel)) - saved[name][channel]) > 1e-6
+            if np.any(moved & np.array(locks[channel], bool)):
+                raise InputError(
+                    f"Nothing was written: the pose needs the control '{name}' of "
+                    f"'{arm_obj.name}' to change its locked {channel.replace('_', ' ')}. "
+                    "Unlock it, or put the bones it poses in the 'Pinned' bone collection.")
+
+
+def _key_switch(arm_obj: bpy.types.Object, holder: str, prop: str, old: float,
+                frame: float) -> None:
+    """Key a limb's IK/FK switch at ``frame`` only.
+
+    Its old values are keyed at the frames either side (where it has no key), all three
+    keys constant, so the other frames keep theirs.
+    """
+    from bpy_extras.anim_utils import action_get_channelbag_for_slot
+
+    pb = arm_obj.pose.bones[holder]
+    path = f'pose.bones["{bpy.utils.escape_identifier(holder)}"]["{prop}"]'
+    anim = arm_obj.animation_data
+    bag = action_get_channelbag_for_slot(anim.action, anim.action_slot)
+    curve = next((c for c in bag.fcurves if c.data_path == path), None) if bag else None
+    value = pb[prop]
+    before = {f: (curve.evaluate(f) if curve is not None else old)
+              for f in (frame - 1, frame + 1)}
+    keyed = {k.co[0] for k in curve.keyframe_points} if curve is not None else set()
+    pb.keyframe_insert(f'["{prop}"]', frame=frame, group=holder)
+    for f, v in before.items():
+        if f not in keyed:
+            pb[prop] = v
+            pb.keyframe_insert(f'["{prop}"]', frame=f, group=holder)
+    pb[prop] = value
+    bag = action_get_channelbag_for_slot(anim.action, anim.action_slot)
+    curve = next(c for c in bag.fcurves if c.data_path == path)
+    for k in curve.keyframe_points:
+        if k.co[0] in (frame - 1, frame, frame + 1):
+            k.interpolation = "CONSTANT"
+    arm_obj.update_tag()
 
 
 def _channel_values(arm_obj: bpy.types.Object, names: Sequence[str]) -> dict:

@@ -14,7 +14,7 @@ from gesture_pose.core.exceptions import InputError
 from gesture_pose.core.skeleton import Pose
 from sample_scenes import builders
 
-ARM_L = ("ORG-upper_arm.L", "ORG-forearm.L", "DEF-hand.L")
+ARM_L = ("ORG-upper_arm.L", "ORG-forearm.L", "ORG-hand.L")
 
 
 def _generated(metarig_add):
@@ -71,8 +71,8 @@ def test_the_rig_is_read_as_its_metarig_bones(rig):
                                                                   strict=True)}
     assert sk.names[0] == "DEF-spine" and parent["DEF-spine"] is None
     assert parent["DEF-spine.001"] == "DEF-spine"  # through the torso, by the rest joint
-    assert parent["neck"] == "DEF-spine.003" and parent["DEF-spine.006"] == "neck"
-    assert parent["ORG-upper_arm.L"] == "DEF-shoulder.L"
+    assert parent["neck"] == "DEF-spine.003" and parent["ORG-spine.006"] == "neck"
+    assert parent["ORG-upper_arm.L"] == "ORG-shoulder.L"
     assert parent["ORG-thigh.R"] == "DEF-spine"
     assert not any(n.startswith(("MCH-", "tweak_")) for n in sk.names)
     assert np.abs(data.pose.rotations - np.eye(3)).max() < 1e-5
@@ -93,30 +93,31 @@ def test_a_pose_is_written_through_the_controls_and_keyed(rig):
     data = read_armature(rig)
     rng = np.random.default_rng(3)
     names = (*ARM_L, "DEF-spine", "DEF-spine.001", "DEF-spine.002", "DEF-spine.003",
-             "neck", "DEF-spine.006", "ORG-thigh.R", "ORG-shin.R")
+             "neck", "ORG-spine.006", "ORG-thigh.R", "ORG-shin.R", "ORG-foot.R")
     new = _turned(data, {n: rng.normal(0.0, 0.35, 3) for n in names}, (0.05, 0.02, -0.1))
-    foot = _evaluated(rig, "DEF-foot.L")[:3, 3]
-    hand = _evaluated(rig, "DEF-hand.R")[:3, 3]
+    foot = _evaluated(rig, "ORG-foot.L")[:3, 3]
+    hand = _evaluated(rig, "ORG-hand.R")[:3, 3]
     written = apply_pose(rig, data, new, location_bones=[0], frame=7)
 
     assert {"upper_arm_fk.L", "forearm_fk.L", "hand_fk.L", "spine_fk.002", "neck", "head",
             "thigh_fk.R", "torso", "upper_arm_parent.L", "thigh_parent.R"} <= set(written)
-    assert not any(n.startswith(("DEF-", "ORG-", "MCH-")) for n in written)
+    assert not [n for n in written if n.startswith(("DEF-", "ORG-", "MCH-"))]
     assert rig.pose.bones["upper_arm_parent.L"][IK_FK] == 1.0
     assert rig.pose.bones["thigh_parent.R"][IK_FK] == 1.0
     assert rig.pose.bones["thigh_parent.L"][IK_FK] == 0.0  # untouched: still IK
     assert rig.pose.bones["upper_arm_parent.R"][IK_FK] == 0.0
-    assert keyed_frames(rig, "upper_arm_parent.L", f'["{IK_FK}"]') == [7.0]
+    # The switch holds at frame 7 only: its old value keyed either side, constant.
+    assert keyed_frames(rig, "upper_arm_parent.L", f'["{IK_FK}"]') == [6.0, 7.0, 8.0]
     assert keyed_frames(rig, "upper_arm_fk.L", "rotation_quaternion") == [7.0]
     assert keyed_frames(rig, "torso", "location") == [7.0]
     assert keyed_frames(rig, "thigh_parent.L", f'["{IK_FK}"]') == []
     assert keyed_frames(rig, "DEF-spine", "rotation_quaternion") == []
-    assert np.abs(_evaluated(rig, "DEF-foot.L")[:3, 3] - foot).max() < 1e-3  # IK: 0.2 mm
-    assert np.abs(_evaluated(rig, "DEF-hand.R")[:3, 3] - hand).max() < 1e-3
+    assert np.abs(_evaluated(rig, "ORG-foot.L")[:3, 3] - foot).max() < 1e-3  # IK: 0.2 mm
+    assert np.abs(_evaluated(rig, "ORG-hand.R")[:3, 3] - hand).max() < 1e-3
 
     state = data.skeleton.forward(new)
-    in_ik = {"ORG-thigh.L", "ORG-shin.L", "DEF-foot.L", "DEF-toe.L", "ORG-heel.02.L",
-             "ORG-upper_arm.R", "ORG-forearm.R", "DEF-hand.R"}
+    in_ik = {"ORG-thigh.L", "ORG-shin.L", "ORG-foot.L", "ORG-toe.L", "ORG-heel.02.L",
+             "ORG-upper_arm.R", "ORG-forearm.R", "ORG-hand.R"}
     for i, name in enumerate(data.skeleton.names):
         if name in in_ik:
             continue
@@ -128,9 +129,75 @@ def test_a_pose_is_written_through_the_controls_and_keyed(rig):
         else:
             assert np.abs(rot - state.frames[i]).max() < 2e-3, name
     back = read_armature(rig)
-    for name in ARM_L + ("ORG-thigh.R", "ORG-shin.R", "DEF-spine", "neck"):
+    for name in ARM_L + ("ORG-thigh.R", "ORG-shin.R", "ORG-foot.R", "DEF-spine", "neck"):
         i = data.skeleton.index(name)
         assert np.abs(back.pose.rotations[i] - new.rotations[i]).max() < 2e-3, name
+    for frame, value in ((6, 0.0), (7, 1.0), (8, 0.0), (30, 0.0)):
+        bpy.context.scene.frame_set(frame)
+        assert rig.pose.bones["upper_arm_parent.L"][IK_FK] == value, frame
+
+
+def test_only_the_bones_allowed_are_written_and_the_root_stays(rig):
+    """``bones`` limits the write to the left arm and no location is asked for: the
+    spine's controls and the torso are not touched though the pose turns the chest and
+    moves the root."""
+    data = read_armature(rig)
+    new = _turned(data, {"ORG-upper_arm.L": np.array([0.0, -0.8, 0.3]),
+                         "DEF-spine.003": np.array([0.0, 0.3, 0.0])}, (0.0, 0.0, 0.2))
+    chest = _evaluated(rig, "DEF-spine.003")
+    written = apply_pose(rig, data, new, bones=list(ARM_L))
+    assert "upper_arm_fk.L" in written
+    assert not {"spine_fk.003", "torso", "neck", "head"} & set(written)
+    assert np.abs(_evaluated(rig, "DEF-spine.003") - chest).max() < 1e-5
+    assert tuple(rig.pose.bones["torso"].location) == (0.0, 0.0, 0.0)
+
+
+def test_a_locked_control_is_not_changed(rig):
+    """The FK upper arm locked about its x axis: a pose turning it there is refused,
+    with the control and the lock named; nothing changes."""
+    rig.pose.bones["upper_arm_fk.L"].lock_rotation[0] = True
+    data = read_armature(rig)
+    new = _turned(data, {"ORG-upper_arm.L": np.array([0.7, 0.0, 0.0])})
+    with pytest.raises(InputError, match=r"'upper_arm_fk.L'.*locked rotation"):
+        apply_pose(rig, data, new)
+    assert tuple(rig.pose.bones["upper_arm_fk.L"].rotation_quaternion) == (1, 0, 0, 0)
+    assert rig.pose.bones["upper_arm_parent.L"][IK_FK] == 0.0
+
+
+def test_controls_name_their_limb_and_deform_groups_weigh_with_it(rig):
+    """Flip Depth given the FK control of the upper arm flips the arm; a mesh weighted
+    to the arm's second deform segment weighs with the upper arm's reading bone; the
+    abstraction tools refuse the rig."""
+    from gesture_pose.blender.operators.abstraction_job import read_rig_job
+    from gesture_pose.blender.operators.pose_drawing import flip_limb_depth
+    from gesture_pose.blender.read_mesh import read_skinned_meshes
+    from gesture_pose.blender.read_view import camera_from_object
+
+    data = read_armature(rig)
+    apply_pose(rig, data, _turned(data, {"ORG-upper_arm.L": np.array([0.9, 0.0, 0.0])}),
+               insert_keys=False)
+    cam = builders.add_camera(rig)
+    elbow = _evaluated(rig, "ORG-forearm.L")[:3, 3]
+    written = flip_limb_depth(rig, "upper_arm_fk.L",
+                              camera_from_object(cam, bpy.context.scene), insert_keys=False)
+    assert "upper_arm_fk.L" in written
+    flipped = _evaluated(rig, "ORG-forearm.L")[:3, 3]
+    shoulder = _evaluated(rig, "ORG-upper_arm.L")[:3, 3]
+    assert abs(elbow[1] - shoulder[1]) > 0.05  # the camera looks along +Y
+    # Mirrored along the eye rays (perspective): the depth's sign turns, its size stays.
+    assert (flipped[1] - shoulder[1]) / (shoulder[1] - elbow[1]) == pytest.approx(1.0,
+                                                                                   abs=0.15)
+
+    mesh = bpy.data.meshes.new("Arm")
+    mesh.from_pydata([(0.4, 0.0, 1.4), (0.5, 0.0, 1.4), (0.45, 0.05, 1.45)], [], [(0, 1, 2)])
+    obj = bpy.data.objects.new("Arm", mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    obj.modifiers.new("Armature", "ARMATURE").object = rig
+    obj.vertex_groups.new(name="DEF-upper_arm.L.001").add([0, 1, 2], 1.0, "REPLACE")
+    weights = read_skinned_meshes(rig, read_armature(rig).skeleton).weights
+    assert np.all(weights[:, data.skeleton.index("ORG-upper_arm.L")] == 1.0)
+    with pytest.raises(InputError, match="abstraction tools do not pose it"):
+        read_rig_job(None, bpy.context, rig)
 
 
 def test_a_pose_the_controls_cannot_give_is_refused_and_nothing_changes(rig):
@@ -221,11 +288,11 @@ def test_fingers_and_face_of_the_full_human(full_rig):
     sk = data.skeleton
     parent = {n: sk.names[p] if p >= 0 else None for n, p in zip(sk.names, sk.parents,
                                                                   strict=True)}
-    assert parent["DEF-palm.01.L"] == "DEF-hand.L"
+    assert parent["DEF-palm.01.L"] == "ORG-hand.L"
     assert parent["f_index.01.L"] == "DEF-palm.01.L" and parent["f_index.02.L"] == "f_index.01.L"
     rng = np.random.default_rng(5)
     new = _turned(data, {n: rng.normal(0.0, 0.35, 3) for n in (
-        "neck", "DEF-spine.006", *ARM_L, "f_index.01.R", "f_index.02.R", "thumb.01.R")})
+        "neck", "ORG-spine.006", *ARM_L, "f_index.01.R", "f_index.02.R", "thumb.01.R")})
     written = apply_pose(rig, data, new, frame=2)
     assert {"f_index.01.R", "thumb.01.R", "upper_arm_parent.R", "upper_arm_parent.L",
             "neck", "head"} <= set(written)
@@ -239,3 +306,45 @@ def test_fingers_and_face_of_the_full_human(full_rig):
         assert np.linalg.norm(got[:3, 3] - state.heads[i]) < 1e-4, name
         if name not in ("DEF-spine.001", "DEF-spine.002"):
             assert np.abs(rot - state.frames[i]).max() < 2e-3, name
+
+
+def test_pose_stick_figure_on_a_rigify_rig(registered, rig):
+    """A stick figure drawn over the rig (the projection of a known pose: an arm
+    raised, a knee bent): the metarig's spine gives the pelvis and the head control the
+    head; Blender's evaluation of the rig gives the first suggestion back, which lies on
+    the drawing; the figure's place is keyed on the torso."""
+    import json
+
+    from gesture_pose.blender.read_view import camera_from_object
+    from gesture_pose.core.stick.figure import character_figure
+
+    data = read_armature(rig)
+    figure, humanoid = character_figure(data.skeleton, data.ik_limits, data.roles)
+    assert humanoid
+    known = _turned(data, {"ORG-upper_arm.L": np.array([0.0, -0.8, 0.3]),
+                           "ORG-thigh.R": np.array([0.6, 0.0, 0.0]),
+                           "ORG-shin.R": np.array([-0.9, 0.0, 0.0])})
+    state = data.skeleton.forward(known)
+    joints = figure.joint_positions(state.heads, state.tails)
+    cam_obj = builders.add_camera(rig, direction=(0.5, -1.0, 0.2))
+    cam = camera_from_object(cam_obj, bpy.context.scene)
+    px = cam.project(joints)
+    depth = 0.5 * float(cam.depth(joints[:1])[0])
+    strokes = [cam.unproject_at_depth(np.linspace(px[p], px[j], 8), depth)
+               for j, p in enumerate(figure.joint_parents) if p >= 0 and not figure.optional[j]]
+    gp = builders.add_grease_pencil("Sketch", strokes)
+    bpy.context.scene.frame_set(9)
+    assert bpy.ops.gesture_pose.pose_stick_figure(armature=rig.name, sketch=gp.name,
+                                                  suggestions=1, seed=2) == {"FINISHED"}
+    stored = json.loads(bpy.context.scene["gesture_pose_stick_suggestions"])
+    first = data.skeleton.forward(Pose(np.array(stored["rotations"][0]),
+                                       np.array(stored["translations"][0])))
+    want = figure.joint_positions(first.heads, first.tails)
+    after = read_armature(rig)
+    posed = after.skeleton.forward(after.pose)
+    got = figure.joint_positions(posed.heads, posed.tails)
+    np.testing.assert_allclose(got, want, atol=2e-3)
+    drawn = ~figure.optional
+    assert np.linalg.norm(cam.project(got)[drawn] - px[drawn], axis=1).mean() < 4.0
+    assert keyed_frames(rig, "torso", "location") == [9.0]
+    assert keyed_frames(rig, "upper_arm_fk.L", "rotation_quaternion") == [9.0]

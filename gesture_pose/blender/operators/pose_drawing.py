@@ -165,6 +165,8 @@ def flip_limb_depth(arm_obj: bpy.types.Object, bone_name: str, camera: Camera, *
         InputError: No such bone.
     """
     data = read_armature(arm_obj)
+    if data.rigify is not None:  # a Rigify control names the limb it poses
+        bone_name = data.rigify.reading_of(bone_name)
     root = data.skeleton.index(bone_name)
     chain = data.skeleton.descendants(root)
     state = data.skeleton.forward(data.pose)

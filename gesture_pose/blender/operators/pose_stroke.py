@@ -137,10 +137,14 @@ class GESTUREPOSE_OT_pose_stroke(GesturePoseOperatorMixin, bpy.types.Operator):
     insert_keys: bpy.props.BoolProperty(name="Insert Keys", default=True)
     remove_used_strokes: bpy.props.BoolProperty(name="Remove Used Strokes", default=False)
 
-    def _options(self) -> StrokeOptions:
+    def _options(self, data) -> StrokeOptions:
+        # On a Rigify rig an animator names a limb by its controls: read as its bones.
+        named = data.rigify.reading_of if data.rigify is not None else str
         return StrokeOptions(
-            mode=self.mode, tracking=self.tracking, start_bone=self.start_bone or None,
-            direction_bone=self.direction_bone or None, end_bone=self.end_bone or None,
+            mode=self.mode, tracking=self.tracking,
+            start_bone=named(self.start_bone) if self.start_bone else None,
+            direction_bone=named(self.direction_bone) if self.direction_bone else None,
+            end_bone=named(self.end_bone) if self.end_bone else None,
             pick_radius=self.pick_radius, feature_extraction=self.feature_extraction)
 
     def run(self, context: bpy.types.Context) -> set[str]:
@@ -149,11 +153,12 @@ class GESTUREPOSE_OT_pose_stroke(GesturePoseOperatorMixin, bpy.types.Operator):
         arm = resolve_armature(context, self.armature)
         sketch = resolve_sketch(context, self.sketch, arm)
         frame = context.scene.frame_current
+        data = read_armature(arm)
         job = StrokeJob(
-            read_armature(arm),
+            data,
             choose_strokes(read_sketch(sketch, frame), _active_layer_name(sketch),
                            self.stroke_index, self.all_strokes),
-            self._options())
+            self._options(data))
         camera = camera_from_context(context)
         pose, results = solve_strokes(job, camera)
         changed = sorted({int(i) for r in results for i in r.changed})

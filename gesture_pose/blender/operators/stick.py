@@ -74,7 +74,7 @@ def figure_edges(context, armature: str = "") -> tuple[tuple[str, ...], tuple[st
         key = _bones_key(arm)
         if key not in _FIGURE_CACHE:
             data = read_armature(arm)
-            figure, _ = character_figure(data.skeleton, data.ik_limits)
+            figure, _ = character_figure(data.skeleton, data.ik_limits, data.roles)
             _FIGURE_CACHE.clear()
             _FIGURE_CACHE[key] = (figure.joint_names,
                                   _edges(figure.joint_names, figure.joint_parents))
@@ -210,7 +210,7 @@ class GESTUREPOSE_OT_next_suggestion(GesturePoseOperatorMixin, bpy.types.Operato
         n = len(stored["rotations"])
         k = (int(stored.get("current", 0)) + self.step) % n
         pose = Pose(np.array(stored["rotations"][k]), np.array(stored["translations"][k]))
-        figure, _ = character_figure(data.skeleton, data.ik_limits)
+        figure, _ = character_figure(data.skeleton, data.ik_limits, data.roles)
         # Only the bones a solve poses: a suggestion also holds the others' rotations at
         # the time of the solve, which the user may have changed since.
         _, solved = base_pose(data, figure)

@@ -10,6 +10,7 @@ wrists, knees and ankles, and optional hand and foot tips.
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -163,11 +164,14 @@ class CharacterFigure:
                         heads[..., self.joint_bones, :])
 
 
-def find_humanoid_bones(skeleton: Skeleton) -> dict[str, int]:
+def find_humanoid_bones(skeleton: Skeleton, roles: Mapping[str, str] | None = None
+                        ) -> dict[str, int]:
     """Map humanoid roles (``"pelvis"``, ``"upper_arm.L"``, ...) to bone indices by name.
 
     Args:
         skeleton: The character's skeleton.
+        roles: Roles the rig gives outright, ``{role: bone name}`` (a Rigify rig's
+            ``spine`` is its pelvis, ``spine.006`` its head); the names decide the rest.
 
     Returns:
         Roles found; sided roles end in ``.L`` or ``.R``. Only deforming bones are used
@@ -176,7 +180,7 @@ def find_humanoid_bones(skeleton: Skeleton) -> dict[str, int]:
     Raises:
         InputError: A role needed by the stick figure is missing.
     """
-    found: dict[str, int] = {}
+    found = {role: skeleton.index(name) for role, name in (roles or {}).items()}
     usable = skeleton.deform if np.any(skeleton.deform) else np.ones(skeleton.n_bones, bool)
     names = [_name_words(name) for name in skeleton.names]
     sides = [bone_side(name) for name in skeleton.names]
@@ -260,7 +264,8 @@ def _group(name, skeleton, bones, basis_bounds, ik_limits, comfort=None) -> Gene
 
 
 def humanoid_figure(skeleton: Skeleton, ik_limits: np.ndarray | None = None,
-                    up: np.ndarray = (0.0, 0.0, 1.0)) -> CharacterFigure:
+                    up: np.ndarray = (0.0, 0.0, 1.0),
+                    roles: Mapping[str, str] | None = None) -> CharacterFigure:
     """Build the stick model of a humanoid skeleton.
 
     Ranges of motion are the rig's IK limits where set (``ik_limits``, ``(n, 3, 2)``
@@ -273,11 +278,12 @@ def humanoid_figure(skeleton: Skeleton, ik_limits: np.ndarray | None = None,
         skeleton: Rest skeleton (world space).
         ik_limits: Optional per-bone IK limits, shape ``(n, 3, 2)``.
         up: World up direction, shape ``(3,)``.
+        roles: Roles the rig gives outright (:func:`find_humanoid_bones`).
 
     Returns:
         The figure.
     """
-    b = find_humanoid_bones(skeleton)
+    b = find_humanoid_bones(skeleton, roles)
     up = normalize(np.asarray(up, float))
     forward = np.array([0.0, -1.0, 0.0])
     f = sum(skeleton.rest_tails[b[f"foot.{s}"]] - skeleton.rest_heads[b[f"foot.{s}"]]
@@ -563,14 +569,20 @@ def topology_ranges(skeleton: Skeleton, use: np.ndarray, root: int, forward: np.
             for b in range(skeleton.n_bones) if use[b] and b != root]
 
 
-def character_figure(skeleton: Skeleton, ik_limits: np.ndarray | None = None
+def character_figure(skeleton: Skeleton, ik_limits: np.ndarray | None = None,
+                     roles: Mapping[str, str] | None = None
                      ) -> tuple[CharacterFigure, bool]:
     """The humanoid stick model when the bones are recognised, else the topology one.
+
+    Args:
+        skeleton: Rest skeleton (world space).
+        ik_limits: Optional per-bone IK limits, shape ``(n, 3, 2)``.
+        roles: Roles the rig gives outright (:func:`find_humanoid_bones`).
 
     Returns:
         ``(figure, humanoid)``.
     """
     try:
-        return humanoid_figure(skeleton, ik_limits), True
+        return humanoid_figure(skeleton, ik_limits, roles=roles), True
     except InputError:
         return topology_figure(skeleton, ik_limits), False

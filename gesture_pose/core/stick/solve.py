@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -111,6 +112,8 @@ class StickInput:
         mesh_vertices: Rest skin vertices ``(V, 3)`` (capsules, masses), or None.
         mesh_weights: Skin weights ``(V, n)``, or None.
         ik_limits: Rig IK limits ``(n, 3, 2)`` (NaN = unlimited), or None.
+        roles: Humanoid roles the rig gives outright, ``{role: bone name}``
+            (:func:`.figure.find_humanoid_bones`), or None.
         base_pose: Pose of the bones the solver does not move (rest when None).
         env_pins: Joints pinned to surfaces.
         limb_pins: Joints pinned to the body.
@@ -140,6 +143,7 @@ class StickInput:
     mesh_vertices: np.ndarray | None = None
     mesh_weights: np.ndarray | None = None
     ik_limits: np.ndarray | None = None
+    roles: Mapping[str, str] | None = None
     base_pose: Pose | None = None
     env_pins: tuple[EnvPinSpec, ...] = ()
     limb_pins: tuple[LimbPinSpec, ...] = ()
@@ -597,7 +601,7 @@ def _solve(inp: StickInput) -> StickResult:
     if inp.facing not in ("front", "back"):
         raise InputError(f"Facing must be 'front' or 'back', not {inp.facing!r}.")
     sk, cam = inp.skeleton, inp.camera
-    figure, humanoid = character_figure(sk, inp.ik_limits)
+    figure, humanoid = character_figure(sk, inp.ik_limits, inp.roles)
     lengths = figure.edge_lengths(sk)
     stick = inp.stick or stick_figure_from_strokes(inp.strokes, figure, inp.snap_radius,
                                                    inp.facing, lengths)
