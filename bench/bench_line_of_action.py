@@ -252,6 +252,9 @@ def round_trip_table(quick: bool) -> tuple[str, list[str], list[list]]:
                          len(times), float(np.median(times)), float(np.max(times))])
     finally:
         gesture_pose.unregister()
+        import addon_utils
+
+        addon_utils.disable("rigify", default_set=True)
     return ("Line of action: Pose Stroke operator round trip (read, solve, key)",
             ["rig", "bones", "runs", "median ms", "max ms"], rows)
 

@@ -326,10 +326,10 @@ def _read_rigify(arm_obj: bpy.types.Object, rigify: RigifyMap, world: np.ndarray
                  rot_o: np.ndarray, scale: float) -> ArmatureData:
     """A generated Rigify rig read as its reading bones (``rigify.py``).
 
-    The pose is Blender's evaluation of those bones; pins, locks and the Gesture
-    collection are read from each bone's control as well as the bone itself (animators
-    pin and lock the controls they see); the rig's IK limits are its IK chains', not
-    these bones', so none are read.
+    The pose is Blender's evaluation of those bones; pins and the Gesture collection are
+    read from each bone's control as well as the bone itself (animators pin the
+    controls they see), rotation locks from the bones that are their own control; the
+    rig's IK limits are its IK chains', not these bones', so none are read.
     """
     names_all = rigify.reading
     parent_names = [names_all[p] if p >= 0 else None for p in rigify.parents]
@@ -375,7 +375,11 @@ def _read_rigify(arm_obj: bpy.types.Object, rigify: RigifyMap, world: np.ndarray
                 pinned |= mask
             else:
                 gesture = mask
-    lock = np.array([tuple(pose_bones[c].lock_rotation) for c in controls], bool)
+    # A control's channels may turn about another parent than the reading bone's (the
+    # head's follows the torso): only a bone that is its own control gives the solvers
+    # its locks; the write refuses to change a locked control channel.
+    lock = np.array([tuple(pose_bones[n].lock_rotation) if c == n else (False,) * 3
+                     for n, c in zip(names, controls, strict=True)], bool)
     return ArmatureData(
         object_name=arm_obj.name,
         skeleton=skeleton,

@@ -105,9 +105,11 @@ class RigifyMap:
         if found:
             return found
         stem, dot, rest = name.partition(".")
-        for tag in ("_fk", "_ik", "_parent"):
+        for tag in ("_ik_target", "_fk", "_ik", "_parent", "_master"):
             if stem.endswith(tag):
                 return self.orgs.get(f"ORG-{stem[: -len(tag)]}{dot}{rest}", name)
+        if name == "torso":  # the figure's master control: its root
+            return self.roles.get("pelvis", name)
         return name
 
 
@@ -126,6 +128,27 @@ def _is_control(name: str) -> bool:
 def _same_rest(a: bpy.types.Bone, b: bpy.types.Bone, tol: float) -> bool:
     return ((a.head_local - b.head_local).length < tol
             and (a.tail_local - b.tail_local).length < tol)
+
+
+def _exact_source(pb: bpy.types.PoseBone, holders: dict[str, str]) -> str:
+    """The control a pose bone copies whole, or ``""``.
+
+    Its first Copy Transforms, at full influence, from a control; every later
+    constraint is the limb's IK copy (driven by ``IK_FK``), scales it only or has no
+    influence. A palm copying its control at a third and turned by a Copy Rotation has
+    none.
+    """
+    found = ""
+    for c in pb.constraints:
+        if not found:
+            if (c.type != "COPY_TRANSFORMS" or c.target != pb.id_data or c.influence < 1.0
+                    or not _is_control(c.subtarget)):
+                return ""
+            found = c.subtarget
+        elif (c.influence > 0.0 and pb.name not in holders
+              and c.type not in ("COPY_SCALE", "LIMIT_SCALE")):
+            return ""
+    return found
 
 
 def _copy_sources(pb: bpy.types.PoseBone) -> list[str]:
@@ -205,13 +228,14 @@ def rigify_map(arm_obj: bpy.types.Object) -> RigifyMap | None:
         sources = _copy_sources(pbs[org.name])
         deform = bones.get(f"DEF-{base}")
         same = deform is not None and _same_rest(deform, org, tol)
-        if sources and _is_control(sources[0]):  # FK limbs, shoulders, the head
+        exact = _exact_source(pbs[org.name], holders)
+        if exact and exact not in controls.values():  # FK limbs, shoulders, the head
             # The ORG- bone is the control's exact copy (a DEF- foot stretches to the
             # toe, which can twist it; a heel hangs from the ORG- foot).
-            reading[org.name], controls[org.name] = org.name, sources[0]
+            reading[org.name], controls[org.name] = org.name, exact
             continue
         span, covered = _spanning_control(arm_obj, org, tol) if sources else ("", [])
-        if span:  # bones following tweaks under one control (the neck)
+        if span and span not in controls.values():  # bones under one control: the neck
             for name in covered:
                 reading[name] = span
             absorbed.update(covered)
@@ -219,7 +243,7 @@ def rigify_map(arm_obj: bpy.types.Object) -> RigifyMap | None:
             continue
         read = deform.name if same else org.name  # the spine; unconstrained bones
         reading[org.name] = read
-        if _fk_name(base) in pbs:
+        if _fk_name(base) in pbs and _fk_name(base) not in controls.values():
             controls[read] = _fk_name(base)
         elif not pbs[read].constraints and not sources:  # pelvis sides: their own keys
             controls[read] = read
@@ -370,6 +394,34 @@ def _following(arm_obj: bpy.types.Object, data) -> set[str]:
                   and all(arm_obj.pose.bones[n].lock_rotation)}
 
 
+def switching(arm_obj: bpy.types.Object, data, changed: list[str]) -> list[str]:
+    """The ``IK_FK`` holders a write of ``changed`` switches from IK to FK."""
+    return [h for h in _limbs_of(data, changed)
+            if float(arm_obj.pose.bones[h].get(IK_FK, 1.0)) < 1.0]
+
+
+def _snap(arm_obj: bpy.types.Object, name: str, matrix: np.ndarray) -> list[str]:
+    """Give a control a pose-space matrix, scale included, through its channels.
+
+    Returns:
+        The channels whose values changed.
+    """
+    from mathutils import Matrix
+
+    from .controls import _set_pose_matrix
+
+    pb = arm_obj.pose.bones[name]
+    local = np.array(arm_obj.convert_space(pose_bone=pb, matrix=Matrix(matrix.tolist()),
+                                           from_space="POSE", to_space="LOCAL"))
+    channels = _set_pose_matrix(arm_obj, name, matrix, True, True)
+    scale = np.linalg.norm(local[:3, :3], axis=0)
+    if np.abs(scale - np.array(pb.scale)).max() > 1e-6:
+        pb.scale = scale
+        channels.append("scale")
+        bpy.context.view_layer.update()
+    return channels
+
+
 def _limbs_of(data, changed: list[str]) -> list[str]:
     """The ``IK_FK`` holders of the limbs holding a changed bone or a bone above it.
 
@@ -426,18 +478,32 @@ def pose_rig(arm_obj: bpy.types.Object, data, pose, changed: list[str],
                          f"'{arm_obj.name}' have no control that poses them; put them in "
                          "the 'Pinned' bone collection (or lock their rotation) to pose "
                          "the rest.")
-    for holder in _limbs_of(data, changed):
-        if float(arm_obj.pose.bones[holder].get(IK_FK, 1.0)) < 1.0:
-            arm_obj.pose.bones[holder][IK_FK] = 1.0
-            insert_switches.append(holder)
-    arm_obj.update_tag()
-    bpy.context.view_layer.update()
-    solved = _Solved(arm_obj, data, pose)
+    locked = [n for n in changed if rig.controls.get(n) == n
+              and all(arm_obj.pose.bones[n].lock_rotation)]
+    if locked:
+        raise InputError(f"Nothing was written: the pose turns {locked[:5]}, locked in the "
+                         f"Rigify rig '{arm_obj.name}' (Rigify locks its DEF- and ORG- "
+                         "bones): pose a chain of bones with controls, or unlock them.")
     written: dict[str, list[str]] = {}
 
     def note(name, channels):
         have = written.setdefault(name, [])
         have.extend(c for c in channels if c not in have)
+
+    for holder in switching(arm_obj, data, changed):
+        # Rigify's own IK -> FK snap first: the FK controls take the limb as its IK
+        # shows it, stretch included (the IK stretches or squashes the chain).
+        limb = [n for n in data.skeleton.names if rig.switches.get(n) == holder]
+        shown = {n: _evaluated(arm_obj, n) for n in limb}
+        arm_obj.pose.bones[holder][IK_FK] = 1.0
+        insert_switches.append(holder)
+        arm_obj.update_tag()
+        bpy.context.view_layer.update()
+        for name in limb:  # parents first
+            note(rig.controls[name], _snap(arm_obj, rig.controls[name], shown[name]))
+    arm_obj.update_tag()
+    bpy.context.view_layer.update()
+    solved = _Solved(arm_obj, data, pose)
 
     names = data.skeleton.names
     root = names[0]

@@ -210,7 +210,7 @@ def _apply_rigify(arm_obj: bpy.types.Object, data: ArmatureData, solved: Pose,
     is locked (``lock_rotation``, ``lock_location``) is never changed: the write is
     refused instead.
     """
-    from .rigify import IK_FK, ROTATION_TOLERANCE, pose_rig
+    from .rigify import IK_FK, ROTATION_TOLERANCE, pose_rig, switching
 
     if not rotating and not relocated:
         return []
@@ -228,6 +228,7 @@ def _apply_rigify(arm_obj: bpy.types.Object, data: ArmatureData, solved: Pose,
     for name in relocated:
         translations[names.index(name)] = np.asarray(solved.translations)[names.index(name)]
     effective = Pose(rotations, translations)
+    _check_switches(arm_obj, switching(arm_obj, data, rotating), insert_keys, frame)
     holders = sorted(set(rig.switches.values()))
     writable = sorted({*rig.controls.values(), *holders}
                       | {p.name for c in rig.controls.values()
@@ -257,11 +258,65 @@ def _apply_rigify(arm_obj: bpy.types.Object, data: ArmatureData, solved: Pose,
     return sorted(channels, key=order.get)
 
 
+def _switch_curve(arm_obj: bpy.types.Object, holder: str):
+    """The F-curve of a limb's ``IK_FK`` in the armature's action slot, or None."""
+    from bpy_extras.anim_utils import action_get_channelbag_for_slot
+
+    from .rigify import IK_FK
+
+    anim = arm_obj.animation_data
+    if anim is None or anim.action is None:
+        return None
+    bag = action_get_channelbag_for_slot(anim.action, anim.action_slot)
+    path = f'pose.bones["{bpy.utils.escape_identifier(holder)}"]["{IK_FK}"]'
+    return next((c for c in bag.fcurves if c.data_path == path), None) if bag else None
+
+
+def _check_switches(arm_obj: bpy.types.Object, holders: list[str], insert_keys: bool,
+                    frame: float) -> None:
+    """Refuse a switch from IK to FK that would change other frames.
+
+    Keyed, the switch holds at ``frame`` only (:func:`_key_switch`), which needs its
+    curve flat around the frame: an animated switch (a blend from IK to FK over some
+    frames) is the animator's. Unkeyed, the switch would hold on every frame of an
+    animated rig.
+    """
+    from bpy_extras.anim_utils import action_get_channelbag_for_slot
+
+    anim = arm_obj.animation_data
+    bag = (action_get_channelbag_for_slot(anim.action, anim.action_slot)
+           if anim is not None and anim.action is not None else None)
+    animated = bag is not None and len(bag.fcurves) > 0
+    for holder in holders:
+        curve = _switch_curve(arm_obj, holder)
+        if not insert_keys and (animated or curve is not None):
+            raise InputError(
+                f"Nothing was written: the pose switches '{holder}' from IK to FK, which "
+                "unkeyed would show on every frame; turn Insert Keys on (the switch is "
+                "then keyed at this frame only) or switch the limb yourself.")
+        if curve is not None:
+            left, right = _segment(curve, frame)
+            values = [curve.evaluate(f) for f in (left, frame - 1, frame, frame + 1, right)]
+            if np.ptp(values) > 1e-6:
+                raise InputError(
+                    f"Nothing was written: the IK/FK switch of '{holder}' is animated "
+                    f"around frame {frame:g}; switch the limb to FK there yourself "
+                    "(Rigify's IK/FK panel), or pose it on a frame where the switch holds.")
+
+
+def _segment(curve, frame: float) -> tuple[float, float]:
+    """The frames of the keys around ``frame`` (the frame itself beyond the ends)."""
+    keys = sorted(k.co[0] for k in curve.keyframe_points)
+    left = max((k for k in keys if k <= frame), default=frame)
+    right = min((k for k in keys if k >= frame), default=frame)
+    return left, right
+
+
 def _check_locks(arm_obj: bpy.types.Object, saved: dict, channels: dict) -> None:
     """Raise when a written control changed a locked component of a channel."""
     for name, written in channels.items():
         pb = arm_obj.pose.bones[name]
-        locks = {"location": tuple(pb.lock_location),
+        locks = {"location": tuple(pb.lock_location), "scale": tuple(pb.lock_scale),
                  "rotation_euler": tuple(pb.lock_rotation),
                  "rotation_quaternion": (pb.lock_rotations_4d and pb.lock_rotation_w,
                                          *pb.lock_rotation),
@@ -274,38 +329,37 @@ def _check_locks(arm_obj: bpy.types.Object, saved: dict, channels: dict) -> None
             if np.any(moved & np.array(locks[channel], bool)):
                 raise InputError(
                     f"Nothing was written: the pose needs the control '{name}' of "
-                    f"'{arm_obj.name}' to change its locked {channel.replace('_', ' ')}. "
-                    "Unlock it, or put the bones it poses in the 'Pinned' bone collection.")
+                    f"'{arm_obj.name}' to change its locked {channel.replace('_', ' ')}; "
+                    "unlock it to pose these bones.")
 
 
 def _key_switch(arm_obj: bpy.types.Object, holder: str, prop: str, old: float,
                 frame: float) -> None:
     """Key a limb's IK/FK switch at ``frame`` only.
 
-    Its old values are keyed at the frames either side (where it has no key), all three
-    keys constant, so the other frames keep theirs.
+    :func:`_check_switches` made sure the switch is flat around the frame. The key at
+    the frame is constant; so is a key of the old value added at the frame before
+    (holding it up to this frame); one added at the frame after keeps the interpolation
+    of the segment it splits (the curve is flat there, so its shape does not change).
+    Keys already at those frames are left as they are.
     """
-    from bpy_extras.anim_utils import action_get_channelbag_for_slot
-
     pb = arm_obj.pose.bones[holder]
-    path = f'pose.bones["{bpy.utils.escape_identifier(holder)}"]["{prop}"]'
-    anim = arm_obj.animation_data
-    bag = action_get_channelbag_for_slot(anim.action, anim.action_slot)
-    curve = next((c for c in bag.fcurves if c.data_path == path), None) if bag else None
-    value = pb[prop]
-    before = {f: (curve.evaluate(f) if curve is not None else old)
-              for f in (frame - 1, frame + 1)}
+    curve = _switch_curve(arm_obj, holder)
     keyed = {k.co[0] for k in curve.keyframe_points} if curve is not None else set()
+    after = curve.evaluate(frame + 1) if curve is not None else old
+    before = curve.evaluate(frame - 1) if curve is not None else old
+    value = pb[prop]
     pb.keyframe_insert(f'["{prop}"]', frame=frame, group=holder)
-    for f, v in before.items():
+    added = []
+    for f, v in ((frame - 1, before), (frame + 1, after)):
         if f not in keyed:
             pb[prop] = v
             pb.keyframe_insert(f'["{prop}"]', frame=f, group=holder)
+            added.append(f)
     pb[prop] = value
-    bag = action_get_channelbag_for_slot(anim.action, anim.action_slot)
-    curve = next(c for c in bag.fcurves if c.data_path == path)
+    curve = _switch_curve(arm_obj, holder)
     for k in curve.keyframe_points:
-        if k.co[0] in (frame - 1, frame, frame + 1):
+        if k.co[0] == frame or (k.co[0] == frame - 1 and frame - 1 in added):
             k.interpolation = "CONSTANT"
     arm_obj.update_tag()
 
