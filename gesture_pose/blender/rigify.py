@@ -62,6 +62,10 @@ class RigifyMap:
             bone and copy the rotation of a tweak that another control carries (the
             middle of the spine, whose twist follows the hips' and chest's controls);
             only their direction is posed.
+        orgs: ``{ORG- bone: reading bone}``.
+        partial: Reading bones without a control whose ``ORG-`` bone copies a control
+            part-way (palms .02 and .03 follow the palm control at a third and two
+            thirds): they follow the rig.
     """
 
     reading: tuple[str, ...]
@@ -72,6 +76,7 @@ class RigifyMap:
     groups: dict[str, str]
     axis_only: frozenset[str] = frozenset()
     orgs: dict[str, str] = field(default_factory=dict)
+    partial: frozenset[str] = frozenset()
 
     @property
     def roles(self) -> dict[str, str]:
@@ -104,10 +109,13 @@ class RigifyMap:
         found = self.orgs.get(name) or self.groups.get(name)
         if found:
             return found
-        stem, dot, rest = name.partition(".")
+        stem, dot, side = name.rpartition(".")
+        if side not in ("L", "R"):
+            stem, dot, side = name, "", ""
         for tag in ("_ik_target", "_fk", "_ik", "_parent", "_master"):
-            if stem.endswith(tag):
-                return self.orgs.get(f"ORG-{stem[: -len(tag)]}{dot}{rest}", name)
+            if stem.endswith(tag):  # f_index.01_master.L -> ORG-f_index.01.L
+                found = self.orgs.get(f"ORG-{stem[: -len(tag)]}{dot}{side}")
+                return self.reading_of(found) if found else name
         if name == "torso":  # the figure's master control: its root
             return self.roles.get("pelvis", name)
         return name
@@ -276,8 +284,12 @@ def _assemble(arm_obj, reading: dict[str, str], controls: dict[str, str],
     deform = np.zeros(len(names), bool)
     deform[[position[r] for r in groups.values()]] = True
     switches = {reading[o]: h for o, h in holders.items() if o in reading}
+    pbs = arm_obj.pose.bones
+    partial = frozenset(r for o, r in reading.items() if r not in controls
+                        and any(c.type in ("COPY_TRANSFORMS", "COPY_ROTATION")
+                                and c.influence > 0.0 for c in pbs[o].constraints))
     return RigifyMap(names, parents, deform, controls, switches, groups,
-                     _axis_only(arm_obj, names, controls), dict(reading))
+                     _axis_only(arm_obj, names, controls), dict(reading), partial)
 
 
 def _deform_groups(bones, reading: dict[str, str]) -> dict[str, str]:
@@ -378,13 +390,16 @@ def _following(arm_obj: bpy.types.Object, data) -> set[str]:
     """The reading bones that follow the rig, neither written nor compared.
 
     The limbs left in IK, with the bones below them, follow their IK controls (a
-    planted foot stays planted when the hips turn); bones that are their own control
-    and locked on every axis (Rigify locks its heels and pelvis sides) follow theirs.
+    planted foot stays planted when the hips turn); bones that copy a control part-way
+    (palms between the hand and the palm control) follow both; bones that are their own
+    control and locked on every axis (Rigify locks its heels and pelvis sides) follow
+    theirs.
     """
     rig: RigifyMap = data.rigify
     names, parents = data.skeleton.names, data.skeleton.parents
     out = {n for n, h in rig.switches.items()
            if float(arm_obj.pose.bones[h].get(IK_FK, 1.0)) < 1.0}
+    out |= rig.partial
     for i, name in enumerate(names):  # parents first: the bones below them
         if parents[i] >= 0 and names[parents[i]] in out:
             out.add(name)
@@ -472,18 +487,18 @@ def pose_rig(arm_obj: bpy.types.Object, data, pose, changed: list[str],
     from .controls import HEAD_TOLERANCE, _angle, _evaluated, _set_pose_matrix, _Solved
 
     rig: RigifyMap = data.rigify
+    locked = [n for n in changed if rig.controls.get(n, n) == n
+              and all(arm_obj.pose.bones[n].lock_rotation)]
+    if locked:
+        raise InputError(f"Nothing was written: the pose turns {locked[:5]}, locked in the "
+                         f"Rigify rig '{arm_obj.name}' (Rigify locks its DEF- and ORG- "
+                         "bones): pose a chain of bones with controls, or unlock them.")
     bare = [n for n in changed if n not in rig.controls]
     if bare:
         raise InputError(f"Nothing was written: {bare[:5]} of the Rigify rig "
                          f"'{arm_obj.name}' have no control that poses them; put them in "
                          "the 'Pinned' bone collection (or lock their rotation) to pose "
                          "the rest.")
-    locked = [n for n in changed if rig.controls.get(n) == n
-              and all(arm_obj.pose.bones[n].lock_rotation)]
-    if locked:
-        raise InputError(f"Nothing was written: the pose turns {locked[:5]}, locked in the "
-                         f"Rigify rig '{arm_obj.name}' (Rigify locks its DEF- and ORG- "
-                         "bones): pose a chain of bones with controls, or unlock them.")
     written: dict[str, list[str]] = {}
 
     def note(name, channels):

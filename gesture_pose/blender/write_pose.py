@@ -205,10 +205,10 @@ def _apply_rigify(arm_obj: bpy.types.Object, data: ArmatureData, solved: Pose,
     The bones outside ``allowed`` keep the rotations they have and the root keeps its
     place unless it is ``relocated`` (the controls are then moved so that they do: a
     spine control turns the hips about the spine's middle). A limb switched from IK to
-    FK has its ``IK_FK`` keyed at the frame, constant, between keys of its old value at
-    the frames either side, so the other frames keep their IK. A control channel that
-    is locked (``lock_rotation``, ``lock_location``) is never changed: the write is
-    refused instead.
+    FK has its ``IK_FK`` keyed at the frame only (:func:`_key_switch`); a switch that
+    would change other frames is refused (:func:`_check_switches`). A control channel
+    that is locked (``lock_rotation``, ``lock_location``, ``lock_scale``) is never
+    changed: the write is refused instead.
     """
     from .rigify import IK_FK, ROTATION_TOLERANCE, pose_rig, switching
 
@@ -260,14 +260,9 @@ def _apply_rigify(arm_obj: bpy.types.Object, data: ArmatureData, solved: Pose,
 
 def _switch_curve(arm_obj: bpy.types.Object, holder: str):
     """The F-curve of a limb's ``IK_FK`` in the armature's action slot, or None."""
-    from bpy_extras.anim_utils import action_get_channelbag_for_slot
-
     from .rigify import IK_FK
 
-    anim = arm_obj.animation_data
-    if anim is None or anim.action is None:
-        return None
-    bag = action_get_channelbag_for_slot(anim.action, anim.action_slot)
+    bag = _channelbag(arm_obj)
     path = f'pose.bones["{bpy.utils.escape_identifier(holder)}"]["{IK_FK}"]'
     return next((c for c in bag.fcurves if c.data_path == path), None) if bag else None
 
@@ -276,17 +271,19 @@ def _check_switches(arm_obj: bpy.types.Object, holders: list[str], insert_keys: 
                     frame: float) -> None:
     """Refuse a switch from IK to FK that would change other frames.
 
-    Keyed, the switch holds at ``frame`` only (:func:`_key_switch`), which needs its
-    curve flat around the frame: an animated switch (a blend from IK to FK over some
-    frames) is the animator's. Unkeyed, the switch would hold on every frame of an
-    animated rig.
+    Keyed, the switch holds at ``frame`` only (:func:`_key_switch`); that needs the limb
+    in IK (``IK_FK`` 0) around the frame and nowhere in FK, since the FK controls are
+    keyed at this frame and a frame showing FK would show them too. An animated blend
+    from IK to FK is the animator's. Unkeyed, the switch would hold on every frame of an
+    animated rig (its action or NLA strips).
     """
-    from bpy_extras.anim_utils import action_get_channelbag_for_slot
+    from .rigify import IK_FK
 
     anim = arm_obj.animation_data
-    bag = (action_get_channelbag_for_slot(anim.action, anim.action_slot)
-           if anim is not None and anim.action is not None else None)
-    animated = bag is not None and len(bag.fcurves) > 0
+    animated = anim is not None and (
+        any(len(t.strips) for t in anim.nla_tracks)
+        or (anim.action is not None and _channelbag(arm_obj) is not None
+            and len(_channelbag(arm_obj).fcurves) > 0))
     for holder in holders:
         curve = _switch_curve(arm_obj, holder)
         if not insert_keys and (animated or curve is not None):
@@ -294,22 +291,27 @@ def _check_switches(arm_obj: bpy.types.Object, holders: list[str], insert_keys: 
                 f"Nothing was written: the pose switches '{holder}' from IK to FK, which "
                 "unkeyed would show on every frame; turn Insert Keys on (the switch is "
                 "then keyed at this frame only) or switch the limb yourself.")
-        if curve is not None:
-            left, right = _segment(curve, frame)
-            values = [curve.evaluate(f) for f in (left, frame - 1, frame, frame + 1, right)]
-            if np.ptp(values) > 1e-6:
-                raise InputError(
-                    f"Nothing was written: the IK/FK switch of '{holder}' is animated "
-                    f"around frame {frame:g}; switch the limb to FK there yourself "
-                    "(Rigify's IK/FK panel), or pose it on a frame where the switch holds.")
+        if curve is None:
+            values = [float(arm_obj.pose.bones[holder].get(IK_FK, 0.0))]
+        else:
+            values = [curve.evaluate(f) for f in (frame - 1, frame, frame + 1)]
+            values += [k.co[1] for k in curve.keyframe_points]
+        if max(values) > 1e-6:
+            raise InputError(
+                f"Nothing was written: the IK/FK switch of '{holder}' is animated or "
+                f"blends IK and FK (it shows FK on other frames, or part-way around frame "
+                f"{frame:g}); switch the limb to FK at this frame yourself (Rigify's IK/FK "
+                "panel), or pose it on a frame where it is in FK.")
 
 
-def _segment(curve, frame: float) -> tuple[float, float]:
-    """The frames of the keys around ``frame`` (the frame itself beyond the ends)."""
-    keys = sorted(k.co[0] for k in curve.keyframe_points)
-    left = max((k for k in keys if k <= frame), default=frame)
-    right = min((k for k in keys if k >= frame), default=frame)
-    return left, right
+def _channelbag(arm_obj: bpy.types.Object):
+    """The channelbag of the armature's action slot, or None."""
+    from bpy_extras.anim_utils import action_get_channelbag_for_slot
+
+    anim = arm_obj.animation_data
+    if anim is None or anim.action is None:
+        return None
+    return action_get_channelbag_for_slot(anim.action, anim.action_slot)
 
 
 def _check_locks(arm_obj: bpy.types.Object, saved: dict, channels: dict) -> None:

@@ -164,9 +164,10 @@ def test_a_locked_control_is_not_changed(rig):
 
 
 def test_controls_name_their_limb_and_deform_groups_weigh_with_it(rig):
-    """Flip Depth given the FK control of the upper arm flips the arm; a mesh weighted
-    to the arm's second deform segment weighs with the upper arm's reading bone; the
-    abstraction tools refuse the rig."""
+    """Flip Depth given the FK control of the upper arm flips the arm, and given the
+    thigh's a leg (its locked heel following the foot); a mesh weighted to the arm's
+    second deform segment weighs with the upper arm's reading bone; the abstraction
+    tools refuse the rig."""
     from gesture_pose.blender.operators.abstraction_job import read_rig_job
     from gesture_pose.blender.operators.pose_drawing import flip_limb_depth
     from gesture_pose.blender.read_mesh import read_skinned_meshes
@@ -186,6 +187,17 @@ def test_controls_name_their_limb_and_deform_groups_weigh_with_it(rig):
     # Mirrored along the eye rays (perspective): the depth's sign turns, its size stays.
     assert (flipped[1] - shoulder[1]) / (shoulder[1] - elbow[1]) == pytest.approx(1.0,
                                                                                    abs=0.15)
+
+    # A leg, whose locked heel keeps its rotation and follows the foot.
+    apply_pose(rig, data, _turned(read_armature(rig), {
+        "ORG-thigh.R": np.array([0.5, 0.0, 0.0])}), insert_keys=False)
+    knee = _evaluated(rig, "ORG-shin.R")[:3, 3]
+    hip = _evaluated(rig, "ORG-thigh.R")[:3, 3]
+    assert "thigh_fk.R" in flip_limb_depth(rig, "thigh_fk.R",
+                                           camera_from_object(cam, bpy.context.scene),
+                                           insert_keys=False)
+    flipped = _evaluated(rig, "ORG-shin.R")[:3, 3]
+    assert (flipped[1] - hip[1]) / (hip[1] - knee[1]) == pytest.approx(1.0, abs=0.15)
 
     mesh = bpy.data.meshes.new("Arm")
     mesh.from_pydata([(0.4, 0.0, 1.4), (0.5, 0.0, 1.4), (0.45, 0.05, 1.45)], [], [(0, 1, 2)])
@@ -278,20 +290,26 @@ def test_pose_on_a_rigify_rig(registered, rig, monkeypatch):
 
 def test_partial_copies_have_no_control_and_locked_bones_are_refused(full_rig):
     """The human's palms .02 and .03 copy the palm control at a third and two thirds:
-    only palm .04, its whole copy, is posed through it; a pose turning palm .02 is
-    refused (it has no control), and so is one turning palm .01, a locked deform bone;
-    nothing changes."""
+    only palm .04, its whole copy, is posed through it (the two others follow part-way,
+    as the rig has them); a pose turning palm .02 or palm .01, locked deform bones, is
+    refused with the lock named, and nothing changes."""
     data = read_armature(full_rig)
     rig_map = data.rigify
     assert rig_map.controls.get("ORG-palm.04.L") == "palm.L"
     assert "DEF-palm.02.L" not in rig_map.controls
     assert rig_map.controls.get("DEF-palm.01.L") == "DEF-palm.01.L"
     before = {pb.name: tuple(pb.rotation_quaternion) for pb in full_rig.pose.bones}
-    for name, why in (("DEF-palm.02.L", "no control"), ("DEF-palm.01.L", "locked")):
+    assert "DEF-palm.02.L" in rig_map.partial
+    for name in ("DEF-palm.02.L", "DEF-palm.01.L"):
         new = _turned(data, {name: np.array([0.0, 0.0, 0.2])})
-        with pytest.raises(InputError, match=rf"'{name}'.*{why}"):
+        with pytest.raises(InputError, match=rf"'{name}'.*locked"):
             apply_pose(full_rig, data, new)
     assert {pb.name: tuple(pb.rotation_quaternion) for pb in full_rig.pose.bones} == before
+    new = _turned(data, {"ORG-palm.04.L": np.array([0.0, 0.0, 0.2])})
+    assert "palm.L" in apply_pose(full_rig, data, new)
+    want = data.skeleton.forward(new).frames[data.skeleton.index("ORG-palm.04.L")]
+    got = _evaluated(full_rig, "ORG-palm.04.L")[:3, :3]
+    assert np.abs(got / np.linalg.norm(got, axis=0) - want).max() < 2e-3
 
 
 def test_fingers_and_face_of_the_full_human(full_rig):
@@ -408,7 +426,7 @@ def test_the_switch_keeps_the_other_frames_and_refuses_when_it_cannot(rig):
         holder.keyframe_insert(f'["{IK_FK}"]', frame=frame)
     bpy.context.scene.frame_set(10)
     data = read_armature(rig)
-    with pytest.raises(InputError, match=r"'upper_arm_parent.R' is animated around frame 10"):
+    with pytest.raises(InputError, match=r"'upper_arm_parent.R' is animated or blends"):
         apply_pose(rig, data, _turned(data, {"ORG-forearm.R": np.array([0.9, 0.0, 0.0])}))
     assert keyed_frames(rig, "upper_arm_parent.R", f'["{IK_FK}"]') == [1.0, 20.0]
 

@@ -153,7 +153,8 @@ def flip_limb_depth(arm_obj: bpy.types.Object, bone_name: str, camera: Camera, *
 
     Args:
         arm_obj: The armature object.
-        bone_name: First bone of the limb; the limb is that bone and every bone below it.
+        bone_name: First bone of the limb; the limb is that bone and every bone below it
+            (but bones locked on every axis, which keep their rotation).
         camera: The view (the mirror plane is the view plane through the bone's head).
         frame: Frame to key (the current frame when None).
         insert_keys: Key the changed bones.
@@ -168,7 +169,10 @@ def flip_limb_depth(arm_obj: bpy.types.Object, bone_name: str, camera: Camera, *
     if data.rigify is not None:  # a Rigify control names the limb it poses
         bone_name = data.rigify.reading_of(bone_name)
     root = data.skeleton.index(bone_name)
-    chain = data.skeleton.descendants(root)
+    # A bone locked on every axis keeps its rotation (Rigify's heels and palms follow
+    # their parents); the bones below it are mirrored all the same.
+    chain = np.array([b for b in data.skeleton.descendants(root)
+                      if b == root or not data.lock_rotation[b].all()], dtype=int)
     state = data.skeleton.forward(data.pose)
     forward = camera.view_directions(state.heads[root][None])[0]
     new_pose = flip_depth(data.skeleton, data.pose, chain, forward)
