@@ -228,7 +228,11 @@ def _apply_rigify(arm_obj: bpy.types.Object, data: ArmatureData, solved: Pose,
     for name in relocated:
         translations[names.index(name)] = np.asarray(solved.translations)[names.index(name)]
     effective = Pose(rotations, translations)
-    _check_switches(arm_obj, switching(arm_obj, data, rotating), insert_keys, frame)
+    fk_frames = _check_switches(arm_obj, switching(arm_obj, data, rotating), insert_keys,
+                                frame)
+    # The FK controls of a switched limb as the frames it shows FK on have them.
+    held = {c: _held_values(arm_obj, c, fk_frames[h]) for n, h in rig.switches.items()
+            if fk_frames.get(h) and (c := rig.controls.get(n))}
     holders = sorted(set(rig.switches.values()))
     writable = sorted({*rig.controls.values(), *holders}
                       | {p.name for c in rig.controls.values()
@@ -252,6 +256,8 @@ def _apply_rigify(arm_obj: bpy.types.Object, data: ArmatureData, solved: Pose,
                 arm_obj.pose.bones[name].keyframe_insert(channel, frame=frame, group=name)
         for holder in switched:
             _key_switch(arm_obj, holder, IK_FK, float(switches[holder] or 0.0), frame)
+        for name, values in held.items():
+            _hold(arm_obj, name, values, channels.get(name, []))
     for holder in switched:
         channels.setdefault(holder, []).append(f'["{IK_FK}"]')
     order = {b.name: i for i, b in enumerate(arm_obj.data.bones)}
@@ -268,14 +274,19 @@ def _switch_curve(arm_obj: bpy.types.Object, holder: str):
 
 
 def _check_switches(arm_obj: bpy.types.Object, holders: list[str], insert_keys: bool,
-                    frame: float) -> None:
+                    frame: float) -> dict[str, list[float]]:
     """Refuse a switch from IK to FK that would change other frames.
 
     Keyed, the switch holds at ``frame`` only (:func:`_key_switch`); that needs the limb
-    in IK (``IK_FK`` 0) around the frame and nowhere in FK, since the FK controls are
-    keyed at this frame and a frame showing FK would show them too. An animated blend
-    from IK to FK is the animator's. Unkeyed, the switch would hold on every frame of an
-    animated rig (its action or NLA strips).
+    in IK (``IK_FK`` 0) around the frame. Frames where an earlier write switched it to
+    FK alone (``IK_FK`` keyed above 0 with 0 on the frames either side) keep their FK
+    pose: the FK channels keyed here are also keyed there with the values they have
+    (:func:`_hold`). A blend from IK to FK, or FK held over several frames, is the
+    animator's. Unkeyed, the switch would hold on every frame of an animated rig (its
+    action or NLA strips).
+
+    Returns:
+        ``{holder: frames showing FK alone}``.
     """
     from .rigify import IK_FK
 
@@ -284,6 +295,7 @@ def _check_switches(arm_obj: bpy.types.Object, holders: list[str], insert_keys: 
         any(len(t.strips) for t in anim.nla_tracks)
         or (anim.action is not None and _channelbag(arm_obj) is not None
             and len(_channelbag(arm_obj).fcurves) > 0))
+    out = {}
     for holder in holders:
         curve = _switch_curve(arm_obj, holder)
         if not insert_keys and (animated or curve is not None):
@@ -292,16 +304,50 @@ def _check_switches(arm_obj: bpy.types.Object, holders: list[str], insert_keys: 
                 "unkeyed would show on every frame; turn Insert Keys on (the switch is "
                 "then keyed at this frame only) or switch the limb yourself.")
         if curve is None:
-            values = [float(arm_obj.pose.bones[holder].get(IK_FK, 0.0))]
+            alone, values = [], [float(arm_obj.pose.bones[holder].get(IK_FK, 0.0))]
         else:
+            alone = sorted(k.co[0] for k in curve.keyframe_points if k.co[1] > 1e-6)
             values = [curve.evaluate(f) for f in (frame - 1, frame, frame + 1)]
-            values += [k.co[1] for k in curve.keyframe_points]
+            values += [curve.evaluate(g + d) for g in alone for d in (-1, 1)]
         if max(values) > 1e-6:
             raise InputError(
                 f"Nothing was written: the IK/FK switch of '{holder}' is animated or "
-                f"blends IK and FK (it shows FK on other frames, or part-way around frame "
+                f"blends IK and FK (FK over several frames, or part-way around frame "
                 f"{frame:g}); switch the limb to FK at this frame yourself (Rigify's IK/FK "
                 "panel), or pose it on a frame where it is in FK.")
+        out[holder] = alone
+    return out
+
+
+def _held_values(arm_obj: bpy.types.Object, name: str, frames: list[float]) -> dict:
+    """``{(channel, frame): values}`` of a control's channels at the given frames."""
+    pb = arm_obj.pose.bones[name]
+    bag = _channelbag(arm_obj)
+    out = {}
+    for channel in (rotation_channel(pb.rotation_mode), "location", "scale"):
+        path = f'pose.bones["{bpy.utils.escape_identifier(name)}"].{channel}'
+        curves = {c.array_index: c for c in (bag.fcurves if bag else ())
+                  if c.data_path == path}
+        now = list(getattr(pb, channel))
+        for g in frames:
+            out[(channel, g)] = [curves[i].evaluate(g) if i in curves else now[i]
+                                 for i in range(len(now))]
+    return out
+
+
+def _hold(arm_obj: bpy.types.Object, name: str, values: dict, written: list[str]) -> None:
+    """Key a written control's channels where the limb shows FK alone, as they were.
+
+    At the frames of :func:`_held_values` that have no key on the channel yet.
+    """
+    pb = arm_obj.pose.bones[name]
+    for (channel, g), old in values.items():
+        if channel not in written or g in keyed_frames(arm_obj, name, channel):
+            continue
+        now = list(getattr(pb, channel))
+        setattr(pb, channel, old)
+        pb.keyframe_insert(channel, frame=g, group=name)
+        setattr(pb, channel, now)
 
 
 def _channelbag(arm_obj: bpy.types.Object):

@@ -384,11 +384,11 @@ def test_pose_stick_figure_on_a_rigify_rig(registered, rig):
     assert keyed_frames(rig, "upper_arm_fk.L", "rotation_quaternion") == [9.0]
 
 
-def _arm_matrices(rig, frames) -> dict:
+def _arm_matrices(rig, frames, arm=ARM_L) -> dict:
     out = {}
     for frame in frames:
         bpy.context.scene.frame_set(frame)
-        out[frame] = np.array([_evaluated(rig, n) for n in ARM_L])
+        out[frame] = np.array([_evaluated(rig, n) for n in arm])
     return out
 
 
@@ -420,15 +420,38 @@ def test_the_switch_keeps_the_other_frames_and_refuses_when_it_cannot(rig):
     got = _evaluated(rig, "ORG-forearm.L")[:3, :3]
     assert np.abs(got / np.linalg.norm(got, axis=0) - elbow).max() < 2e-3
 
-    holder = rig.pose.bones["upper_arm_parent.R"]
+    # Blocking: the right arm posed at frame 10, then again at frame 14 where the torso
+    # is lowered, so that its IK stretches the arm: frame 10 keeps its FK pose (the FK
+    # controls' scale, first keyed at 14, is keyed at 10 too as it was).
+    right = ("ORG-upper_arm.R", "ORG-forearm.R", "ORG-hand.R")
+    data = read_armature(rig)
+    apply_pose(rig, data, _turned(data, {"ORG-forearm.R": np.array([0.6, 0.0, 0.0])}))
+    assert keyed_frames(rig, "upper_arm_fk.R", "scale") == []
+    torso = rig.pose.bones["torso"]
+    for frame, z in ((10, 0.0), (14, -0.12)):
+        torso.location = (0.0, 0.0, z)
+        torso.keyframe_insert("location", frame=frame)
+    at_10 = _arm_matrices(rig, (10,), right)[10]
+    bpy.context.scene.frame_set(14)
+    data = read_armature(rig)
+    written = apply_pose(rig, data, _turned(data, {
+        "ORG-upper_arm.R": np.array([0.0, 0.7, 0.0]),
+        "ORG-forearm.R": np.array([0.3, 0.0, 0.0])}))
+    assert "upper_arm_parent.R" in written
+    assert keyed_frames(rig, "upper_arm_parent.R", f'["{IK_FK}"]') == [9.0, 10.0, 11.0,
+                                                                          13.0, 14.0, 15.0]
+    assert keyed_frames(rig, "upper_arm_fk.R", "scale") == [10.0, 14.0]
+    np.testing.assert_allclose(_arm_matrices(rig, (10,), right)[10], at_10, atol=1e-6)
+
+    holder = rig.pose.bones["thigh_parent.L"]
     for frame, value in ((1, 0.0), (20, 1.0)):  # a blend from IK to FK over the shot
         holder[IK_FK] = value
         holder.keyframe_insert(f'["{IK_FK}"]', frame=frame)
     bpy.context.scene.frame_set(10)
     data = read_armature(rig)
-    with pytest.raises(InputError, match=r"'upper_arm_parent.R' is animated or blends"):
-        apply_pose(rig, data, _turned(data, {"ORG-forearm.R": np.array([0.9, 0.0, 0.0])}))
-    assert keyed_frames(rig, "upper_arm_parent.R", f'["{IK_FK}"]') == [1.0, 20.0]
+    with pytest.raises(InputError, match=r"'thigh_parent.L' is animated or blends"):
+        apply_pose(rig, data, _turned(data, {"ORG-shin.L": np.array([0.9, 0.0, 0.0])}))
+    assert keyed_frames(rig, "thigh_parent.L", f'["{IK_FK}"]') == [1.0, 20.0]
 
 
 def test_a_leg_its_ik_squashes_is_switched_as_it_shows(rig):
