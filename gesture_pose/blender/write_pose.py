@@ -278,15 +278,14 @@ def _check_switches(arm_obj: bpy.types.Object, holders: list[str], insert_keys: 
     """Refuse a switch from IK to FK that would change other frames.
 
     Keyed, the switch holds at ``frame`` only (:func:`_key_switch`); that needs the limb
-    in IK (``IK_FK`` 0) around the frame. Frames where an earlier write switched it to
-    FK alone (``IK_FK`` keyed above 0 with 0 on the frames either side) keep their FK
-    pose: the FK channels keyed here are also keyed there with the values they have
-    (:func:`_hold`). A blend from IK to FK, or FK held over several frames, is the
-    animator's. Unkeyed, the switch would hold on every frame of an animated rig (its
-    action or NLA strips).
+    in IK (``IK_FK`` 0) at the frame. Frames an earlier write switched to FK (``IK_FK``
+    keyed 1, every frame showing FK keyed so) keep their FK pose: the FK channels keyed
+    here are also keyed there with the values they have (:func:`_hold`). A blend from
+    IK to FK, or FK held over frames without keys, is the animator's. Unkeyed, the
+    switch would hold on every frame of an animated rig (its action or NLA strips).
 
     Returns:
-        ``{holder: frames showing FK alone}``.
+        ``{holder: the keyed frames showing FK}``.
     """
     from .rigify import IK_FK
 
@@ -304,17 +303,23 @@ def _check_switches(arm_obj: bpy.types.Object, holders: list[str], insert_keys: 
                 "unkeyed would show on every frame; turn Insert Keys on (the switch is "
                 "then keyed at this frame only) or switch the limb yourself.")
         if curve is None:
-            alone, values = [], [float(arm_obj.pose.bones[holder].get(IK_FK, 0.0))]
+            alone, ok = [], float(arm_obj.pose.bones[holder].get(IK_FK, 0.0)) <= 1e-6
         else:
-            alone = sorted(k.co[0] for k in curve.keyframe_points if k.co[1] > 1e-6)
-            values = [curve.evaluate(f) for f in (frame - 1, frame, frame + 1)]
-            values += [curve.evaluate(g + d) for g in alone for d in (-1, 1)]
-        if max(values) > 1e-6:
+            keys = {k.co[0]: k.co[1] for k in curve.keyframe_points}
+            alone = sorted(g for g, v in keys.items() if v > 1e-6)
+            # FK only on keyed frames, whole (1), every other frame around them and
+            # around this one in IK (0): no FK frame is interpolated between keys.
+            ok = (all(abs(keys[g] - 1.0) <= 1e-6 for g in alone)
+                  and curve.evaluate(frame) <= 1e-6
+                  and all(curve.evaluate(g) <= 1e-6 or g in keys
+                          for g in {frame - 1, frame + 1,
+                                    *(g + d for g in alone for d in (-1, 1))}))
+        if not ok:
             raise InputError(
                 f"Nothing was written: the IK/FK switch of '{holder}' is animated or "
-                f"blends IK and FK (FK over several frames, or part-way around frame "
-                f"{frame:g}); switch the limb to FK at this frame yourself (Rigify's IK/FK "
-                "panel), or pose it on a frame where it is in FK.")
+                f"blends IK and FK (FK held between keys, or part-way, around frame "
+                f"{frame:g} or elsewhere); switch the limb to FK at this frame yourself "
+                "(Rigify's IK/FK panel), or pose it on a frame where it is in FK.")
         out[holder] = alone
     return out
 

@@ -442,6 +442,16 @@ def test_the_switch_keeps_the_other_frames_and_refuses_when_it_cannot(rig):
                                                                           13.0, 14.0, 15.0]
     assert keyed_frames(rig, "upper_arm_fk.R", "scale") == [10.0, 14.0]
     np.testing.assert_allclose(_arm_matrices(rig, (10,), right)[10], at_10, atol=1e-6)
+    # And at the very next frame: both stay FK, each with its own pose.
+    at_14 = _arm_matrices(rig, (14,), right)[14]
+    bpy.context.scene.frame_set(15)
+    data = read_armature(rig)
+    apply_pose(rig, data, _turned(data, {"ORG-forearm.R": np.array([1.0, 0.0, 0.0])}))
+    assert keyed_frames(rig, "upper_arm_parent.R", f'["{IK_FK}"]') == [9.0, 10.0, 11.0,
+                                                                          13.0, 14.0, 15.0,
+                                                                          16.0]
+    np.testing.assert_allclose(_arm_matrices(rig, (14,), right)[14], at_14, atol=1e-6)
+    np.testing.assert_allclose(_arm_matrices(rig, (10,), right)[10], at_10, atol=1e-6)
 
     holder = rig.pose.bones["thigh_parent.L"]
     for frame, value in ((1, 0.0), (20, 1.0)):  # a blend from IK to FK over the shot
