@@ -190,11 +190,17 @@ def apply_pose(arm_obj: bpy.types.Object, data: ArmatureData, new_pose: Pose,
         _restore(arm_obj, saved)
         raise
     if insert_keys:
-        for name, written in channels.items():
-            for channel in written:
-                arm_obj.pose.bones[name].keyframe_insert(channel, frame=frame, group=name)
+        _key_channels(arm_obj, channels, frame)
     position = {n: i for i, n in enumerate(names)}
     return sorted(channels, key=lambda n: position.get(n, len(names)))
+
+
+def _key_channels(arm_obj: bpy.types.Object, channels: dict[str, list[str]],
+                  frame: float) -> None:
+    """Key every written channel (``{bone: channels}``) at ``frame``."""
+    for name, written in channels.items():
+        for channel in written:
+            arm_obj.pose.bones[name].keyframe_insert(channel, frame=frame, group=name)
 
 
 def _apply_rigify(arm_obj: bpy.types.Object, data: ArmatureData, solved: Pose,
@@ -251,9 +257,7 @@ def _apply_rigify(arm_obj: bpy.types.Object, data: ArmatureData, solved: Pose,
         _restore(arm_obj, saved)
         raise
     if insert_keys:
-        for name, written in channels.items():
-            for channel in written:
-                arm_obj.pose.bones[name].keyframe_insert(channel, frame=frame, group=name)
+        _key_channels(arm_obj, channels, frame)
         for holder in switched:
             _key_switch(arm_obj, holder, IK_FK, float(switches[holder] or 0.0), frame)
         for name, values in held.items():
