@@ -60,6 +60,12 @@ class _Solved:
         return self.head(name) + self.rotation(name)[:, 1] * self.lengths[name]
 
 
+def rig_size(arm_obj: bpy.types.Object) -> float:
+    """The largest extent of the armature's rest bones, heads and tails (its units)."""
+    rest = np.array([[*b.head_local, *b.tail_local] for b in arm_obj.data.bones])
+    return float(np.ptp(rest.reshape(-1, 3), axis=0).max())
+
+
 def _evaluated(arm_obj: bpy.types.Object, name: str) -> np.ndarray:
     """The bone's evaluated pose matrix, ``(4, 4)`` (constraints included)."""
     return np.array(arm_obj.pose.bones[name].matrix, dtype=float)
@@ -127,13 +133,15 @@ def _targets(arm_obj: bpy.types.Object, solved: _Solved, plan: Redirects
 
 
 def _set_pose_matrix(arm_obj: bpy.types.Object, name: str, matrix: np.ndarray,
-                     rotation: bool, location: bool) -> list[str]:
+                     rotation: bool, location: bool, scale: bool = False) -> list[str]:
     """Give a bone a pose-space matrix through its own channels, continuously.
 
     The local transform is Blender's (``convert_space`` from the pose to the bone's
     local space, its parent as evaluated); the rotation goes through
     :func:`.write_pose.set_rotation` (the current quaternion's side, compatible Euler
-    angles), not through ``pose_bone.matrix``, which keeps neither.
+    angles), not through ``pose_bone.matrix``, which keeps neither. With ``scale``
+    the matrix's scale is written too (a Rigify FK control snapped to a squashed IK
+    limb).
 
     Returns:
         The channels whose values changed.
@@ -155,6 +163,10 @@ def _set_pose_matrix(arm_obj: bpy.types.Object, name: str, matrix: np.ndarray,
         pb.location = local[:3, 3]
         if np.abs(np.array(pb.location) - before).max() > 1e-6:
             channels.append("location")
+    size = np.linalg.norm(local[:3, :3], axis=0)
+    if scale and np.abs(size - np.array(pb.scale)).max() > 1e-6:
+        pb.scale = size
+        channels.append("scale")
     bpy.context.view_layer.update()
     return channels
 
@@ -254,8 +266,7 @@ def _check(arm_obj: bpy.types.Object, solved: _Solved, plan: Redirects,
     :func:`followers` gives: a toe), their head and whole rotation. Other bones are the
     free rig's, written as before.
     """
-    rest = np.array([[*b.head_local, *b.tail_local] for b in arm_obj.data.bones])
-    size = float(np.ptp(rest.reshape(-1, 3), axis=0).max())
+    size = rig_size(arm_obj)
     chained = {n: ch.target for ch in plan.chains for n in ch.chain}
     for name in sorted(plan.handled, key=solved.index.get) + following:
         got = _evaluated(arm_obj, name)

@@ -237,20 +237,11 @@ def read_armature(arm_obj: bpy.types.Object, joints: bool = True) -> ArmatureDat
     parents = np.array([position[bones[n].parent.name] if bones[n].parent else -1
                         for n in names], dtype=int)
 
-    local = _matrices(bones, "matrix_local")[order]
-    heads = _bulk(bones, "head_local", 3)[order]
-    tails = _bulk(bones, "tail_local", 3)[order]
-    if not (np.all(np.isfinite(local)) and np.all(np.isfinite(heads))
-            and np.all(np.isfinite(tails))):
-        raise InputError(f"Armature '{arm_obj.name}' has NaN bone data: fix or recreate the "
-                         "affected bones in Edit Mode.")
-    heads_w = heads @ world[:3, :3].T + world[:3, 3]
-    tails_w = tails @ world[:3, :3].T + world[:3, 3]
-    short = np.linalg.norm(tails_w - heads_w, axis=1) < 1e-9
-    if np.any(short):
-        raise InputError(f"Zero-length bones {[names[i] for i in np.flatnonzero(short)]} in "
-                         f"'{arm_obj.name}': give them a length in Edit Mode.")
-    rest_frames = rot_o @ orthonormalize(local[:, :3, :3])
+    heads_w, tails_w, rest_frames = _world_rest(
+        arm_obj.name, names, _matrices(bones, "matrix_local")[order],
+        _bulk(bones, "head_local", 3)[order], _bulk(bones, "tail_local", 3)[order], world,
+        rot_o, ("fix or recreate the affected bones in Edit Mode.",
+                "give them a length in Edit Mode."))
 
     inherit = _bulk(bones, "use_inherit_rotation", 1, bool)[order, 0]
     connected = _bulk(bones, "use_connect", 1, bool)[order, 0]
@@ -322,6 +313,52 @@ def _as_joints(arm_obj: bpy.types.Object, skeleton: Skeleton, pose: Pose, lock: 
             lock, limits, warnings)
 
 
+def _world_rest(arm_name: str, names, local: np.ndarray, heads: np.ndarray,
+                tails: np.ndarray, world: np.ndarray, rot_o: np.ndarray,
+                fixes: tuple[str, str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World rest heads, tails and frames of bones, checked.
+
+    Args:
+        arm_name: The armature object's name, for messages.
+        names: The bones' names.
+        local: Their ``matrix_local``, ``(n, 4, 4)``.
+        heads: Their rest heads, armature space, ``(n, 3)``.
+        tails: Their rest tails, armature space, ``(n, 3)``.
+        world: The object's world matrix, ``(4, 4)``.
+        rot_o: Its rotation, ``(3, 3)``.
+        fixes: What to do about NaN data and about zero-length bones.
+
+    Returns:
+        ``(heads (n, 3), tails (n, 3), frames (n, 3, 3))`` in world space.
+
+    Raises:
+        InputError: NaN bone data or zero-length bones.
+    """
+    if not (np.all(np.isfinite(local)) and np.all(np.isfinite(heads))
+            and np.all(np.isfinite(tails))):
+        raise InputError(f"Armature '{arm_name}' has NaN bone data: {fixes[0]}")
+    heads_w = heads @ world[:3, :3].T + world[:3, 3]
+    tails_w = tails @ world[:3, :3].T + world[:3, 3]
+    short = np.linalg.norm(tails_w - heads_w, axis=1) < 1e-9
+    if np.any(short):
+        raise InputError(f"Zero-length bones {[names[i] for i in np.flatnonzero(short)]} in "
+                         f"'{arm_name}': {fixes[1]}")
+    return heads_w, tails_w, rot_o @ orthonormalize(local[:, :3, :3])
+
+
+def _in_collection(arm_obj: bpy.types.Object, group: str, names: tuple[str, ...],
+                     controls: tuple[str, ...]) -> np.ndarray | None:
+    """Bones in the bone collection ``group``, themselves or through their control.
+
+    Returns:
+        Shape ``(n,)`` bool, or None when the armature has no such collection.
+    """
+    own = _collection_mask(arm_obj.data, group, names)
+    if own is None:
+        return None
+    return own | _collection_mask(arm_obj.data, group, controls)
+
+
 def _read_rigify(arm_obj: bpy.types.Object, rigify: RigifyMap, world: np.ndarray,
                  rot_o: np.ndarray, scale: float) -> ArmatureData:
     """A generated Rigify rig read as its reading bones (``rigify.py``).
@@ -339,17 +376,11 @@ def _read_rigify(arm_obj: bpy.types.Object, rigify: RigifyMap, world: np.ndarray
     parents = np.array([position[parent_names[i]] if parent_names[i] else -1
                         for i in order], dtype=int)
     bones, pose_bones = arm_obj.data.bones, arm_obj.pose.bones
-    local = np.array([np.array(bones[n].matrix_local) for n in names])
-    heads = np.array([bones[n].head_local for n in names]) @ world[:3, :3].T + world[:3, 3]
-    tails = np.array([bones[n].tail_local for n in names]) @ world[:3, :3].T + world[:3, 3]
-    if not (np.all(np.isfinite(local)) and np.all(np.isfinite(heads))
-            and np.all(np.isfinite(tails))):
-        raise InputError(f"Armature '{arm_obj.name}' has NaN bone data: generate the "
-                         "Rigify rig again from its metarig.")
-    if np.any(np.linalg.norm(tails - heads, axis=1) < 1e-9):
-        raise InputError(f"Zero-length bones in '{arm_obj.name}': generate the Rigify rig "
-                         "again from its metarig.")
-    frames = rot_o @ orthonormalize(local[:, :3, :3])
+    again = "generate the Rigify rig again from its metarig."
+    heads, tails, frames = _world_rest(
+        arm_obj.name, names, np.array([np.array(bones[n].matrix_local) for n in names]),
+        np.array([bones[n].head_local for n in names]),
+        np.array([bones[n].tail_local for n in names]), world, rot_o, (again, again))
     connected = np.array([p >= 0 and np.allclose(heads[i], tails[p], atol=1e-6)
                           for i, p in enumerate(parents)], bool)
     skeleton = Skeleton(names, parents, heads, tails, frames, np.ones(len(names), bool),
@@ -364,17 +395,9 @@ def _read_rigify(arm_obj: bpy.types.Object, rigify: RigifyMap, world: np.ndarray
     pinned = np.array([bool(pose_bones[n].get(PINNED_PROPERTY, False)
                             or pose_bones[c].get(PINNED_PROPERTY, False))
                        for n, c in zip(names, controls, strict=True)], bool)
-    gesture = None
-    for group, mask in ((PINNED_COLLECTION, None), (GESTURE_COLLECTION, None)):
-        own = _collection_mask(arm_obj.data, group, names)
-        ctl = _collection_mask(arm_obj.data, group, tuple(controls))
-        if own is not None or ctl is not None:
-            mask = np.zeros(len(names), bool) if own is None else own
-            mask = mask | (ctl if ctl is not None else False)
-            if group == PINNED_COLLECTION:
-                pinned |= mask
-            else:
-                gesture = mask
+    in_pinned = _in_collection(arm_obj, PINNED_COLLECTION, names, tuple(controls))
+    if in_pinned is not None:
+        pinned |= in_pinned
     # A control's channels may turn about another parent than the reading bone's (the
     # head's follows the torso): only a bone that is its own control gives the solvers
     # its locks; the write refuses to change a locked control channel.
@@ -386,7 +409,8 @@ def _read_rigify(arm_obj: bpy.types.Object, rigify: RigifyMap, world: np.ndarray
         pose=pose,
         rotation_modes=tuple(pose_bones[c].rotation_mode for c in controls),
         pinned=pinned,
-        gesture_override=gesture,
+        gesture_override=_in_collection(arm_obj, GESTURE_COLLECTION, names,
+                                          tuple(controls)),
         lock_rotation=lock,
         ik_limits=np.full((len(names), 3, 2), np.nan),
         object_scale=scale,

@@ -222,9 +222,10 @@ def rigify_map(arm_obj: bpy.types.Object) -> RigifyMap | None:
     """
     if not is_rigify(arm_obj):
         return None
+    from .controls import rig_size
+
     bones, pbs = arm_obj.data.bones, arm_obj.pose.bones
-    rest = np.array([[*b.head_local, *b.tail_local] for b in bones]).reshape(-1, 3)
-    tol = 1e-4 * float(np.ptp(rest, axis=0).max())
+    tol = 1e-4 * rig_size(arm_obj)
     holders = _switch_holders(arm_obj)
     reading: dict[str, str] = {}  # ORG bone -> reading bone
     controls: dict[str, str] = {}
@@ -415,28 +416,6 @@ def switching(arm_obj: bpy.types.Object, data, changed: list[str]) -> list[str]:
             if float(arm_obj.pose.bones[h].get(IK_FK, 1.0)) < 1.0]
 
 
-def _snap(arm_obj: bpy.types.Object, name: str, matrix: np.ndarray) -> list[str]:
-    """Give a control a pose-space matrix, scale included, through its channels.
-
-    Returns:
-        The channels whose values changed.
-    """
-    from mathutils import Matrix
-
-    from .controls import _set_pose_matrix
-
-    pb = arm_obj.pose.bones[name]
-    local = np.array(arm_obj.convert_space(pose_bone=pb, matrix=Matrix(matrix.tolist()),
-                                           from_space="POSE", to_space="LOCAL"))
-    channels = _set_pose_matrix(arm_obj, name, matrix, True, True)
-    scale = np.linalg.norm(local[:3, :3], axis=0)
-    if np.abs(scale - np.array(pb.scale)).max() > 1e-6:
-        pb.scale = scale
-        channels.append("scale")
-        bpy.context.view_layer.update()
-    return channels
-
-
 def _limbs_of(data, changed: list[str]) -> list[str]:
     """The ``IK_FK`` holders of the limbs holding a changed bone or a bone above it.
 
@@ -457,7 +436,7 @@ def _limbs_of(data, changed: list[str]) -> list[str]:
 
 
 def pose_rig(arm_obj: bpy.types.Object, data, pose, changed: list[str],
-             insert_switches: list[str]) -> dict[str, list[str]]:
+             switch: list[str]) -> dict[str, list[str]]:
     """Pose a generated Rigify rig's reading bones through its controls.
 
     Every reading bone with a control is brought to its solved rotation (those the
@@ -473,7 +452,8 @@ def pose_rig(arm_obj: bpy.types.Object, data, pose, changed: list[str],
         data: Its :class:`~.read_armature.ArmatureData` (``data.rigify`` set).
         pose: The solved pose of the reading bones.
         changed: Reading bones whose rotation the write changes.
-        insert_switches: Filled with the pose bones whose ``IK_FK`` was switched.
+        switch: The ``IK_FK`` holders to switch to FK (:func:`switching` of
+            ``changed``).
 
     Returns:
         ``{control: channels written}``.
@@ -484,7 +464,14 @@ def pose_rig(arm_obj: bpy.types.Object, data, pose, changed: list[str],
     """
     from ..core.exceptions import InputError
     from ..core.rotations import rotation_between
-    from .controls import HEAD_TOLERANCE, _angle, _evaluated, _set_pose_matrix, _Solved
+    from .controls import (
+        HEAD_TOLERANCE,
+        _angle,
+        _evaluated,
+        _set_pose_matrix,
+        _Solved,
+        rig_size,
+    )
 
     rig: RigifyMap = data.rigify
     locked = [n for n in changed if rig.controls.get(n, n) == n
@@ -505,17 +492,17 @@ def pose_rig(arm_obj: bpy.types.Object, data, pose, changed: list[str],
         have = written.setdefault(name, [])
         have.extend(c for c in channels if c not in have)
 
-    for holder in switching(arm_obj, data, changed):
+    for holder in switch:
         # Rigify's own IK -> FK snap first: the FK controls take the limb as its IK
         # shows it, stretch included (the IK stretches or squashes the chain).
         limb = [n for n in data.skeleton.names if rig.switches.get(n) == holder]
         shown = {n: _evaluated(arm_obj, n) for n in limb}
         arm_obj.pose.bones[holder][IK_FK] = 1.0
-        insert_switches.append(holder)
         arm_obj.update_tag()
         bpy.context.view_layer.update()
         for name in limb:  # parents first
-            note(rig.controls[name], _snap(arm_obj, rig.controls[name], shown[name]))
+            note(rig.controls[name], _set_pose_matrix(arm_obj, rig.controls[name],
+                                                      shown[name], True, True, True))
     arm_obj.update_tag()
     bpy.context.view_layer.update()
     solved = _Solved(arm_obj, data, pose)
@@ -555,8 +542,7 @@ def pose_rig(arm_obj: bpy.types.Object, data, pose, changed: list[str],
         turned = carry() or turned  # the spine's controls turn about its middle
         if not turned:
             break
-    rest = np.array([[*b.head_local, *b.tail_local] for b in arm_obj.data.bones])
-    size = float(np.ptp(rest.reshape(-1, 3), axis=0).max())
+    size = rig_size(arm_obj)
     for name in (n for n in names if n not in following):
         got = _evaluated(arm_obj, name)
         angle = _angle(got, solved.rotation(name), name in rig.axis_only)

@@ -234,8 +234,8 @@ def _apply_rigify(arm_obj: bpy.types.Object, data: ArmatureData, solved: Pose,
     for name in relocated:
         translations[names.index(name)] = np.asarray(solved.translations)[names.index(name)]
     effective = Pose(rotations, translations)
-    fk_frames = _check_switches(arm_obj, switching(arm_obj, data, rotating), insert_keys,
-                                frame)
+    switched = switching(arm_obj, data, rotating)
+    fk_frames = _check_switches(arm_obj, switched, insert_keys, frame)
     # The FK controls of a switched limb as the frames it shows FK on have them.
     held = {c: _held_values(arm_obj, c, fk_frames[h]) for n, h in rig.switches.items()
             if fk_frames.get(h) and (c := rig.controls.get(n))}
@@ -245,7 +245,6 @@ def _apply_rigify(arm_obj: bpy.types.Object, data: ArmatureData, solved: Pose,
                          for p in arm_obj.data.bones[c].parent_recursive})
     saved = _channel_values(arm_obj, writable)
     switches = {h: arm_obj.pose.bones[h].get(IK_FK) for h in holders}
-    switched: list[str] = []
     try:
         channels = pose_rig(arm_obj, data, effective, rotating, switched)
         _check_locks(arm_obj, saved, channels)
